@@ -1,0 +1,206 @@
+"""Every artifact the pipeline passes between stages, with units and frames in each field.
+
+Field names match the dataclasses in ``artitwin_core`` (the ``tasks`` layer converts between the
+two by name). Frames: "canonical" is the static recording's world frame; "session" is a
+recording's own AR world frame; cameras use OpenCV axes (x right, y down, z forward).
+"""
+
+from __future__ import annotations
+
+from pydantic import Field
+
+from schemas._base import Array, Artifact
+
+# ----------------------------------------------------------------------------------------------
+# Captures and poses
+# ----------------------------------------------------------------------------------------------
+
+
+class CaptureArtifact(Artifact):
+    """One RGB-D recording as read from its files (mirrors ``artitwin_core.capture.Capture``)."""
+
+    kind = "capture"
+    schema_version = 1
+
+    rgb: Array("uint8", "T H W 3") = Field(description="sRGB frames, [T, H, W, 3] uint8.")
+    depth: Array("float32", "T h w") = Field(
+        description="z-depth along the optical axis in metres at depth resolution, [T, h, w]; NaN = no measurement."
+    )
+    confidence: Array("uint8", "T h w") | None = Field(
+        default=None, description="ARKit depth confidence 0 (low), 1, 2 (high), [T, h, w]; None if the format has none."
+    )
+    rgb_intrinsics: Array("float64", "T 4") = Field(
+        description="Pinhole (fx, fy, cx, cy) in pixels at RGB resolution, per frame, [T, 4]."
+    )
+    depth_intrinsics: Array("float64", "T 4") = Field(
+        description="Pinhole (fx, fy, cx, cy) in pixels at depth resolution, per frame, [T, 4]."
+    )
+    world_from_camera: Array("float64", "T 4 4") = Field(
+        description="Camera-to-world rigid transforms in the recording's session frame, metres, OpenCV camera axes, [T, 4, 4]."
+    )
+    timestamps: Array("float64", "T") = Field(description="Seconds since the recording's first frame, [T].")
+    frame_ids: Array("int64", "T") = Field(description="Frame numbers in the source files (may have gaps), [T].")
+    distortion: Array("float64", "K") | None = Field(
+        default=None, description="OpenCV distortion k1 k2 p1 p2 [k3 ...] of the RGB images; None = pinhole."
+    )
+    source_format: str = Field(description="Reader that produced it: record3d-r3d, record3d-exr, nerfstudio, stray, synthetic.")
+    source_path: str = Field(default="", description="Path of the recording as given by the user (informational, not hashed).")
+
+
+class CameraPoses(Artifact):
+    """Camera poses of a recording in some world frame (e.g. refined or registered)."""
+
+    kind = "camera_poses"
+    schema_version = 1
+
+    world_from_camera: Array("float64", "T 4 4") = Field(
+        description="Camera-to-world rigid transforms, metres, OpenCV camera axes, [T, 4, 4], in the frame named by `frame`."
+    )
+    frame_ids: Array("int64", "T") = Field(description="Frame numbers of the recording these poses belong to, [T].")
+    frame: str = Field(description="World frame of the poses: 'canonical' or 'session'.")
+    correction_translation: Array("float64", "T") | None = Field(
+        default=None, description="Per-frame size of the change from the input poses, metres, [T] (None if none was made)."
+    )
+    correction_rotation: Array("float64", "T") | None = Field(
+        default=None, description="Per-frame rotation change from the input poses, degrees, [T] (None if none was made)."
+    )
+
+
+class Registration(Artifact):
+    """Rigid transform that puts the dynamic recording into the canonical frame."""
+
+    kind = "registration"
+    schema_version = 1
+
+    canonical_from_session: Array("float64", "4 4") = Field(
+        description="Maps points from the dynamic recording's session frame to the canonical frame (metres), [4, 4]."
+    )
+    residual_m: float = Field(description="Robust RMS point-to-plane residual after refinement, metres.")
+    inlier_fraction: float = Field(description="Fraction of dynamic depth points within the inlier distance, in [0, 1].")
+    method: str = Field(description="How it was found, e.g. 'fpfh-ransac+icp+photometric'.")
+
+
+# ----------------------------------------------------------------------------------------------
+# Masks and tracks
+# ----------------------------------------------------------------------------------------------
+
+
+class MaskSequenceArtifact(Artifact):
+    """Per-frame part and hand masks of the dynamic recording (mirrors ``artitwin_core.masks.MaskSequence``)."""
+
+    kind = "mask_sequence"
+    schema_version = 1
+
+    part: Array("uint8", "T H W") = Field(description="Part labels at RGB resolution: 0 = not a moving part, k + 1 = part k, [T, H, W].")
+    hand: Array("bool", "T H W") = Field(description="Hand and arm pixels at RGB resolution, [T, H, W].")
+    score: Array("float32", "T") = Field(description="Per-frame confidence of the part mask in [0, 1], [T].")
+
+
+class TrajectoriesArtifact(Artifact):
+    """Point tracks over a recording, padded (mirrors ``artitwin_core.tracking.Trajectories``)."""
+
+    kind = "trajectories"
+    schema_version = 1
+
+    points_in_world: Array("float64", "T N 3") = Field(
+        description="3D track positions in the canonical frame, metres, [T, N, 3]; NaN where invalid."
+    )
+    pixels: Array("float32", "T N 2") = Field(description="Track positions (x, y) in RGB pixels, [T, N, 2]; NaN where invalid.")
+    valid: Array("bool", "T N") = Field(description="True where the track has a reliable 3D position in that frame, [T, N].")
+    query_frame: int = Field(default=0, description="Index (into T) of the frame the tracks were seeded in.")
+    part_ids: Array("int32", "N") | None = Field(
+        default=None, description="Moving part of each track (0 = mask label 1), [N]; None when all are on one part."
+    )
+
+
+# ----------------------------------------------------------------------------------------------
+# Joints
+# ----------------------------------------------------------------------------------------------
+
+
+class JointParams(Artifact):
+    """One estimated joint in the canonical frame (mirrors ``artitwin_core.joints.Joint``)."""
+
+    kind = "joint"
+    schema_version = 1
+
+    joint_type: str = Field(description="'revolute', 'prismatic', 'screw' or 'fixed'.")
+    axis: Array("float64", "3") = Field(description="Unit axis direction in the canonical frame, [3].")
+    pivot: Array("float64", "3") = Field(description="A point on the axis line in the canonical frame, metres, [3].")
+    q: Array("float64", "T") = Field(
+        description="Joint state per dynamic frame: radians (revolute, screw) or metres (prismatic); 0 = closed/canonical, [T]."
+    )
+    q_range: Array("float64", "2") = Field(description="(q_min, q_max) range of motion, same units as q, [2].")
+    residual: Array("float64", "T") = Field(
+        description="Per-frame RMS distance of tracked part points to their joint-predicted positions, metres, [T]; NaN = no tracks."
+    )
+    confidence: Array("float64", "T") = Field(description="Per-frame confidence of q in [0, 1], [T].")
+    pitch: float = Field(default=0.0, description="Screw joints: axial translation per radian, metres/radian; 0 otherwise.")
+    name: str = Field(default="joint_0", description="Joint name (sanitised for URDF/MJCF on export).")
+
+
+class JointSet(Artifact):
+    """All joints of a scene (one per moving part), with the fit's model-selection evidence."""
+
+    kind = "joint_set"
+    schema_version = 1
+
+    joints: list[JointParams] = Field(description="One joint per moving part, in the canonical frame.")
+    selection: dict[str, dict[str, float]] = Field(
+        default_factory=dict,
+        description="Per joint name: score of each joint-type hypothesis (e.g. BIC, lower is better).",
+    )
+
+
+# ----------------------------------------------------------------------------------------------
+# Gaussians
+# ----------------------------------------------------------------------------------------------
+
+
+class GaussianCheckpoint(Artifact):
+    """3D Gaussian splatting parameters in the canonical frame (mirrors ``artitwin_core.gaussians.GaussianParams``)."""
+
+    kind = "gaussian_checkpoint"
+    schema_version = 1
+
+    means: Array("float32", "N 3") = Field(description="Gaussian centres in the canonical frame, metres, [N, 3].")
+    quats_wxyz: Array("float32", "N 4") = Field(description="Rotations as scalar-first quaternions (w, x, y, z), unnormalised, [N, 4].")
+    log_scales: Array("float32", "N 3") = Field(description="Natural log of per-axis standard deviations in metres, [N, 3].")
+    opacity_logits: Array("float32", "N") = Field(description="Logit of opacity (opacity = sigmoid), [N].")
+    sh: Array("float32", "N K 3") = Field(
+        description="Spherical-harmonic RGB coefficients, K = (degree + 1)^2, DC first (colour = 0.5 + C0 * sh_dc), [N, K, 3]."
+    )
+    labels: Array("int32", "N") = Field(description="Part label per Gaussian: 0 background, 1 interior, 2 + k part k, [N].")
+    step: int = Field(default=0, description="Optimisation steps taken to produce it.")
+
+
+# ----------------------------------------------------------------------------------------------
+# Reports
+# ----------------------------------------------------------------------------------------------
+
+
+class ReportImage(Artifact):
+    """One image of a report (a mask overlay, a residual map)."""
+
+    kind = "report_image"
+    schema_version = 1
+
+    pixels: Array("uint8", "H W 3") = Field(description="sRGB image, [H, W, 3] uint8.")
+    caption: str = Field(description="What the image shows, one line.")
+
+
+class StageReport(Artifact):
+    """What a stage measured about its own result, for people and dashboards."""
+
+    kind = "stage_report"
+    schema_version = 1
+
+    stage: str = Field(description="Stage name, e.g. 'ingest'.")
+    metrics: dict[str, float] = Field(
+        default_factory=dict, description="Named scalar metrics; the unit is the name's suffix (_m, _deg, _db, _s, _frac, _count)."
+    )
+    notes: list[str] = Field(default_factory=list, description="Warnings and remarks for the user, one line each.")
+    per_frame: dict[str, list[float]] = Field(
+        default_factory=dict, description="Named per-frame curves (same unit convention as metrics)."
+    )
+    images: list[ReportImage] = Field(default_factory=list, description="Images for the UI.")

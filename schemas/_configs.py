@@ -1,0 +1,93 @@
+"""Stage configs: every hyperparameter a stage reads, frozen, hashed into its store key."""
+
+from __future__ import annotations
+
+from pydantic import Field
+
+from schemas._base import StageConfig
+from schemas._reconstruct import PoseRefineStageConfig, ReconstructConfig
+
+
+class IngestConfig(StageConfig):
+    """How a recording is read into a capture artifact."""
+
+    stride: int = Field(default=1, ge=1, description="Keep every stride-th frame.")
+    max_frames: int | None = Field(default=None, ge=1, description="Keep at most this many frames (after stride); None = all.")
+    rgb_max_width: int | None = Field(
+        default=None, ge=16, description="Downscale RGB to at most this width in pixels (intrinsics scaled to match); None = keep."
+    )
+
+
+class CaptureCheckConfig(StageConfig):
+    """Quality checks of an ingested capture."""
+
+    min_valid_depth_frac: float = Field(
+        default=0.2, ge=0, le=1, description="Warn about frames whose valid-depth fraction is below this."
+    )
+    max_speed_m_s: float = Field(default=2.0, gt=0, description="Warn about camera speeds above this (metres/second): tracking jumps.")
+
+
+Gravity = tuple[float, float, float]
+
+
+class RegisterConfig(StageConfig):
+    """Putting the dynamic recording into the canonical frame (see artitwin_core.registration)."""
+
+    gravity: Gravity = Field(default=(0.0, -1.0, 0.0), description="Gravity direction in both session frames (ARKit: -y).")
+    max_depth_m: float = Field(default=4.5, gt=0, description="Depth beyond this is ignored, metres.")
+    yaw_step_deg: float = Field(default=2.0, gt=0, le=30, description="Step of the exhaustive yaw sweep about gravity, degrees.")
+    colored_icp_voxel_m: float = Field(default=0.01, ge=0, description="Voxel of the final coloured ICP, metres (0 skips it).")
+
+
+class PartMasksConfig(StageConfig):
+    """Finding the moved parts and labelling them in every dynamic frame (see artitwin_core.change)."""
+
+    gravity: Gravity = Field(default=(0.0, -1.0, 0.0), description="Gravity direction in the canonical frame.")
+    tsdf_voxel_m: float = Field(default=0.02, gt=0, description="Voxel of the canonical TSDF model, metres.")
+    tsdf_max_frames: int = Field(default=20, ge=1, description="Static frames fused into the canonical TSDF.")
+    max_depth_m: float = Field(default=4.5, gt=0, description="Depth beyond this is ignored, metres.")
+
+
+class TrackConfig(StageConfig):
+    """Tracking points on each moving part and lifting them to 3D (see artitwin_core.tracking)."""
+
+    max_tracks: int = Field(default=1000, ge=10, description="Query points per part.")
+
+
+class JointConfig(StageConfig):
+    """How joints are fitted to trajectories (see artitwin_core.joints.JointFitConfig)."""
+
+    reference_frame: int = Field(
+        default=0, description="Dynamic frame that defines the closed state q = 0 (the recording starts closed)."
+    )
+    ransac_iterations: int = Field(default=200, ge=10, description="Minimal 3-point samples per frame.")
+    ransac_threshold_m: float = Field(default=0.03, gt=0, description="First inlier threshold on 3D residuals, metres.")
+    min_motion_m: float = Field(default=0.002, ge=0, description="Below this RMS displacement the part counts as not moving, metres.")
+    screw_bic_margin: float = Field(default=10.0, ge=0, description="BIC units a screw joint must beat a revolute one by.")
+    seed: int = Field(default=0, description="RANSAC random seed.")
+
+
+class PipelineConfig(StageConfig):
+    """The configs of every stage of one scene run."""
+
+    ingest: IngestConfig = Field(default_factory=IngestConfig, description="Reading both recordings.")
+    capture_check: CaptureCheckConfig = Field(default_factory=CaptureCheckConfig, description="Capture quality report.")
+    refine_poses: PoseRefineStageConfig = Field(default_factory=PoseRefineStageConfig, description="Static pose refinement.")
+    reconstruct: ReconstructConfig = Field(default_factory=ReconstructConfig, description="Canonical 3DGS training.")
+    registration: RegisterConfig = Field(default_factory=RegisterConfig, description="Dynamic-to-canonical registration.")
+    part_masks: PartMasksConfig = Field(default_factory=PartMasksConfig, description="Part and hand masks.")
+    track: TrackConfig = Field(default_factory=TrackConfig, description="3D point tracks on the parts.")
+    fit_joints: JointConfig = Field(default_factory=JointConfig, description="Joint fitting.")
+
+    @classmethod
+    def preset(cls, name: str) -> PipelineConfig:
+        """A named starting point: ``"default"`` (real captures) or ``"quick"`` (the built-in
+        example and the tests: small scenes, a short 3DGS schedule, fewer features)."""
+        if name == "default":
+            return cls()
+        if name == "quick":
+            return cls(
+                refine_poses=PoseRefineStageConfig(max_features=1024),
+                reconstruct=ReconstructConfig(steps=300, max_init_points=8000, max_gaussians=15000, sh_degree=1),
+            )
+        raise ValueError(f"unknown pipeline preset {name!r}; known: default, quick")
