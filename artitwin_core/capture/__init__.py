@@ -1,0 +1,38 @@
+"""Capture formats: one in-memory :class:`Capture`, readers and writers for each file format.
+
+Readers: Record3D ``.r3d`` and EXR+JPG exports, nerfstudio ``transforms.json`` with depth, Stray
+Scanner folders. All give OpenCV camera axes, camera-to-world poses in metres, intrinsics at RGB
+and depth resolution, and raise :class:`artitwin_core.InputError` naming file and frame on bad input.
+"""
+
+from artitwin_core.capture._common import depth_intrinsics_from_rgb, scale_intrinsics
+from artitwin_core.capture._detect import FORMATS, detect_format, read_capture, recording_files
+from artitwin_core.capture._nerfstudio import read_nerfstudio, write_nerfstudio
+from artitwin_core.capture._options import ReadOptions
+from artitwin_core.capture._r3d import read_r3d, write_r3d
+from artitwin_core.capture._record3d_exr import read_record3d_exr, write_record3d_exr
+from artitwin_core.capture._scene import SceneRecordings, find_scene_recordings
+from artitwin_core.capture._stray import read_stray, write_stray
+from artitwin_core.capture._types import Capture, intrinsics_matrix
+
+__all__ = [
+    "FORMATS",
+    "Capture",
+    "ReadOptions",
+    "SceneRecordings",
+    "depth_intrinsics_from_rgb",
+    "detect_format",
+    "find_scene_recordings",
+    "intrinsics_matrix",
+    "read_capture",
+    "read_nerfstudio",
+    "read_r3d",
+    "read_record3d_exr",
+    "read_stray",
+    "recording_files",
+    "scale_intrinsics",
+    "write_nerfstudio",
+    "write_r3d",
+    "write_record3d_exr",
+    "write_stray",
+]
