@@ -1,0 +1,384 @@
+"""3DGS optimisation with explicit state: Adam, densification, pruning, opacity reset.
+
+Everything that changes during training lives in :class:`TrainState` (parameters, Adam moments,
+densification statistics, the step counter), and every hyperparameter in the frozen
+:class:`TrainConfig`; so a run can be stopped after any step, stored, and resumed to the same
+result. The view order is a function of ``(seed, epoch)`` and split samples of ``(seed, step)``,
+never of hidden generator state.
+"""
+
+from __future__ import annotations
+
+import math
+import time
+from collections.abc import Callable, Sequence
+from dataclasses import dataclass, field
+
+import numpy as np
+import torch
+
+from artitwin_core.capture import Capture
+from artitwin_core.gaussians import LABEL_BACKGROUND, GaussianParams, rasterize
+from artitwin_core.geometry import invert_se3
+from artitwin_core.reconstruction._config import TrainConfig
+from artitwin_core.reconstruction._losses import depth_l1, photometric_loss
+
+PARAM_NAMES = ("means", "quats_wxyz", "log_scales", "opacity_logits", "sh_dc", "sh_rest")
+_ADAM_BETAS = (0.9, 0.999)
+_ADAM_EPS = 1e-15  # as the 3DGS reference code
+
+
+@dataclass
+class TrainViews:
+    """The training views as tensors, with sensor depth resampled onto the RGB pixel grid.
+
+    Attributes:
+        frames: ``[V]`` capture frame indices of the views.
+        rgb: ``[V, H, W, 3]`` float32 targets in [0, 1].
+        depth: ``[V, H, W]`` float32 sensor depth at each RGB pixel (nearest depth pixel), metres;
+            0 where invalid.
+        depth_weight: ``[V, H, W]`` float32 confidence weight (0 = no valid measurement).
+        cam_from_world: ``[V, 4, 4]`` float32 world-to-camera transforms (OpenCV axes).
+        intrinsics: ``[V, 4]`` float64 RGB ``(fx, fy, cx, cy)`` pixels.
+    """
+
+    frames: list[int]
+    rgb: torch.Tensor
+    depth: torch.Tensor
+    depth_weight: torch.Tensor
+    cam_from_world: torch.Tensor
+    intrinsics: np.ndarray
+
+    @property
+    def size(self) -> tuple[int, int]:
+        """``(width, height)`` pixels."""
+        return int(self.rgb.shape[2]), int(self.rgb.shape[1])
+
+
+def depth_on_rgb_grid(capture: Capture, t: int, min_confidence: int = 1) -> tuple[np.ndarray, np.ndarray]:
+    """Sensor depth of frame ``t`` sampled at every RGB pixel centre (nearest depth pixel).
+
+    Uses each image's own intrinsics, so any resolution ratio works.
+
+    Returns:
+        depth ``[H, W]`` float32 metres (0 where invalid), weight ``[H, W]`` float32 (confidence,
+        1 without a confidence map, 0 where invalid or below ``min_confidence``).
+    """
+    _, hr, wr, _ = capture.rgb.shape
+    _, h, w = capture.depth.shape
+    rfx, rfy, rcx, rcy = capture.rgb_intrinsics[t]
+    dfx, dfy, dcx, dcy = capture.depth_intrinsics[t]
+    u = (np.arange(wr) + 0.5 - rcx) / rfx * dfx + dcx
+    v = (np.arange(hr) + 0.5 - rcy) / rfy * dfy + dcy
+    ui = np.floor(u).astype(np.int64)
+    vi = np.floor(v).astype(np.int64)
+    inside = (ui[None, :] >= 0) & (ui[None, :] < w) & (vi[:, None] >= 0) & (vi[:, None] < h)
+    d = capture.depth[t][np.clip(vi, 0, h - 1)][:, np.clip(ui, 0, w - 1)]
+    weight = np.where(inside & np.isfinite(d) & (d > 0), 1.0, 0.0)
+    if capture.confidence is not None:
+        c = capture.confidence[t][np.clip(vi, 0, h - 1)][:, np.clip(ui, 0, w - 1)].astype(np.float64)
+        weight = np.where(c >= max(min_confidence, 1), weight * c, 0.0)
+    return np.where(weight > 0, d, 0.0).astype(np.float32), weight.astype(np.float32)
+
+
+def make_views(capture: Capture, world_from_camera: np.ndarray, frames: Sequence[int], min_confidence: int = 1) -> TrainViews:
+    """Tensors of ``frames`` for training or evaluation, with the given ``[T, 4, 4]`` poses."""
+    frames = [int(f) for f in frames]
+    depth, weight = zip(*[depth_on_rgb_grid(capture, t, min_confidence) for t in frames], strict=True)
+    cams = np.stack([invert_se3(world_from_camera[t]) for t in frames])
+    return TrainViews(
+        frames=frames,
+        rgb=torch.from_numpy(capture.rgb[frames].astype(np.float32) / 255.0),
+        depth=torch.from_numpy(np.stack(depth)),
+        depth_weight=torch.from_numpy(np.stack(weight)),
+        cam_from_world=torch.from_numpy(cams.astype(np.float32)),
+        intrinsics=np.asarray(capture.rgb_intrinsics[frames], np.float64),
+    )
+
+
+def scene_extent(world_from_camera: np.ndarray) -> float:
+    """3DGS's scene scale: 1.1 x the largest distance of a camera centre from their mean, metres
+    (at least 0.5 m, so a tripod-like capture still gets sensible learning rates)."""
+    centres = world_from_camera[:, :3, 3]
+    return max(0.5, 1.1 * float(np.linalg.norm(centres - centres.mean(0), axis=1).max()))
+
+
+@dataclass
+class TrainState:
+    """Everything that evolves during training (checkpointable).
+
+    Attributes:
+        params: name -> ``[N, ...]`` float32 leaf tensors: means ``[N, 3]`` metres, quats_wxyz
+            ``[N, 4]``, log_scales ``[N, 3]``, opacity_logits ``[N]``, sh_dc ``[N, 1, 3]``,
+            sh_rest ``[N, K - 1, 3]``.
+        exp_avg, exp_avg_sq: Adam first and second moments, same shapes as ``params``.
+        step: optimisation steps taken.
+        extent: scene scale in metres (learning rates and size thresholds scale with it).
+        grad_accum: ``[N]`` sum of NDC gradient norms of the 2D centres since the last densification.
+        grad_count: ``[N]`` views each Gaussian was visible in since then.
+        max_radii: ``[N]`` largest screen radius (pixels) since then.
+        losses: the total loss of every step taken.
+    """
+
+    params: dict[str, torch.Tensor]
+    exp_avg: dict[str, torch.Tensor]
+    exp_avg_sq: dict[str, torch.Tensor]
+    step: int
+    extent: float
+    grad_accum: torch.Tensor
+    grad_count: torch.Tensor
+    max_radii: torch.Tensor
+    losses: list[float] = field(default_factory=list)
+
+    @classmethod
+    def from_params(cls, params: GaussianParams, extent: float) -> TrainState:
+        sh = torch.from_numpy(np.ascontiguousarray(params.sh, np.float32))
+        p = {
+            "means": torch.from_numpy(np.ascontiguousarray(params.means, np.float32)),
+            "quats_wxyz": torch.from_numpy(np.ascontiguousarray(params.quats_wxyz, np.float32)),
+            "log_scales": torch.from_numpy(np.ascontiguousarray(params.log_scales, np.float32)),
+            "opacity_logits": torch.from_numpy(np.ascontiguousarray(params.opacity_logits, np.float32)),
+            "sh_dc": sh[:, :1].clone(),
+            "sh_rest": sh[:, 1:].clone(),
+        }
+        p = {k: v.clone().requires_grad_(True) for k, v in p.items()}
+        n = params.num_gaussians
+        return cls(
+            params=p,
+            exp_avg={k: torch.zeros_like(v) for k, v in p.items()},
+            exp_avg_sq={k: torch.zeros_like(v) for k, v in p.items()},
+            step=0,
+            extent=float(extent),
+            grad_accum=torch.zeros(n),
+            grad_count=torch.zeros(n),
+            max_radii=torch.zeros(n),
+        )
+
+    @property
+    def num_gaussians(self) -> int:
+        return int(self.params["means"].shape[0])
+
+    def to_params(self) -> GaussianParams:
+        """The current model as ``GaussianParams`` (numpy copies; labels all background)."""
+        p = {k: v.detach().cpu() for k, v in self.params.items()}
+        sh = torch.cat([p["sh_dc"], p["sh_rest"]], dim=1)
+        return GaussianParams(
+            means=p["means"].numpy().copy(),
+            quats_wxyz=p["quats_wxyz"].numpy().copy(),
+            log_scales=p["log_scales"].numpy().copy(),
+            opacity_logits=p["opacity_logits"].numpy().copy(),
+            sh=sh.numpy().copy(),
+            labels=np.full(self.num_gaussians, LABEL_BACKGROUND, np.int32),
+        )
+
+
+def current_sh_degree(step: int, config: TrainConfig) -> int:
+    """3DGS grows the SH degree by one every ``sh_degree_every`` steps, up to ``sh_degree``."""
+    if config.sh_degree_every <= 0:
+        return config.sh_degree
+    return min(config.sh_degree, step // config.sh_degree_every)
+
+
+def means_lr(step: int, config: TrainConfig, extent: float) -> float:
+    """Exponential decay from ``lr_means`` to ``lr_means_final`` over ``steps``, times extent."""
+    r = min(max(step / max(config.steps, 1), 0.0), 1.0)
+    return extent * math.exp((1 - r) * math.log(config.lr_means) + r * math.log(config.lr_means_final))
+
+
+def render_params(
+    params: dict[str, torch.Tensor],
+    cam_from_world: torch.Tensor,
+    intrinsics: Sequence[float],
+    width: int,
+    height: int,
+    sh_degree: int,
+    config: TrainConfig,
+):
+    """Render the state's parameters into one view (``RenderOutput``)."""
+    sh = torch.cat([params["sh_dc"], params["sh_rest"]], dim=1)
+    return rasterize(
+        params["means"], params["quats_wxyz"], params["log_scales"], params["opacity_logits"], sh,
+        cam_from_world, tuple(float(x) for x in intrinsics), width, height,
+        sh_degree=sh_degree, background=torch.tensor(config.background, dtype=torch.float32),
+        backend=config.backend,
+    )  # fmt: skip
+
+
+def view_index(step: int, num_views: int, seed: int) -> int:
+    """Which training view step ``step`` uses: a fresh permutation per epoch, seeded."""
+    epoch, pos = divmod(step, num_views)
+    return int(np.random.default_rng((seed, epoch)).permutation(num_views)[pos])
+
+
+def train_step(state: TrainState, views: TrainViews, config: TrainConfig) -> float:
+    """One optimisation step on one training view (plus densification when scheduled).
+
+    Returns:
+        the step's total loss.
+    """
+    v = view_index(state.step, len(views.frames), config.seed)
+    w, h = views.size
+    out = render_params(
+        state.params, views.cam_from_world[v], views.intrinsics[v], w, h,
+        current_sh_degree(state.step, config), config,
+    )  # fmt: skip
+    out.retain_means2d_grad()
+    loss = photometric_loss(out.rgb, views.rgb[v], config.lambda_dssim)
+    if config.depth_weight > 0:
+        loss = loss + config.depth_weight * depth_l1(out.expected_depth(), views.depth[v], views.depth_weight[v])
+    for p in state.params.values():
+        p.grad = None
+    loss.backward()
+    with torch.no_grad():
+        _accumulate_stats(state, out, w, h)
+        _adam_update(state, config)
+    state.step += 1
+    state.losses.append(float(loss.detach()))
+    s = state.step
+    if config.densify_from <= s <= config.densify_until and s % config.densify_every == 0:
+        densify_and_prune(state, config)
+    if config.opacity_reset_every > 0 and s % config.opacity_reset_every == 0 and s <= config.densify_until:
+        reset_opacity(state, config)
+    return state.losses[-1]
+
+
+def _accumulate_stats(state: TrainState, out, width: int, height: int) -> None:
+    g = out.means2d_grad
+    vis = out.radii > 0
+    if g is None or not bool(vis.any()):
+        return
+    # 3DGS measures the gradient w.r.t. NDC coordinates: d(px)/d(ndc) = (W/2, H/2).
+    gn = torch.linalg.norm(g.detach().float() * torch.tensor([width / 2.0, height / 2.0]), dim=-1)
+    state.grad_accum[vis] += gn[vis]
+    state.grad_count[vis] += 1
+    state.max_radii[vis] = torch.maximum(state.max_radii[vis], out.radii.detach().float()[vis])
+
+
+def _adam_update(state: TrainState, config: TrainConfig) -> None:
+    lrs = {
+        "means": means_lr(state.step, config, state.extent),
+        "quats_wxyz": config.lr_quats,
+        "log_scales": config.lr_scales,
+        "opacity_logits": config.lr_opacity,
+        "sh_dc": config.lr_sh_dc,
+        "sh_rest": config.lr_sh_rest,
+    }
+    b1, b2 = _ADAM_BETAS
+    t = state.step + 1
+    bc1, bc2 = 1 - b1**t, 1 - b2**t
+    for name, p in state.params.items():
+        if p.grad is None:
+            continue
+        m, v = state.exp_avg[name], state.exp_avg_sq[name]
+        m.mul_(b1).add_(p.grad, alpha=1 - b1)
+        v.mul_(b2).addcmul_(p.grad, p.grad, value=1 - b2)
+        p.sub_(lrs[name] * (m / bc1) / ((v / bc2).sqrt() + _ADAM_EPS))
+
+
+def _replace(state: TrainState, keep: torch.Tensor, new: dict[str, torch.Tensor] | None) -> None:
+    """Keep rows ``keep`` of every parameter (and its Adam moments), then append ``new`` rows
+    (with zero moments), as 3DGS does when it edits the optimiser's tensors."""
+    for name in PARAM_NAMES:
+        p = state.params[name].detach()[keep]
+        m, v = state.exp_avg[name][keep], state.exp_avg_sq[name][keep]
+        if new is not None:
+            p = torch.cat([p, new[name]])
+            m = torch.cat([m, torch.zeros_like(new[name])])
+            v = torch.cat([v, torch.zeros_like(new[name])])
+        state.params[name] = p.contiguous().requires_grad_(True)
+        state.exp_avg[name], state.exp_avg_sq[name] = m.contiguous(), v.contiguous()
+    n = state.num_gaussians
+    state.grad_accum = torch.zeros(n)
+    state.grad_count = torch.zeros(n)
+    state.max_radii = torch.zeros(n)
+
+
+def _quat_to_rotmat(q: torch.Tensor) -> torch.Tensor:
+    q = q / q.norm(dim=-1, keepdim=True).clamp_min(1e-12)
+    w, x, y, z = q.unbind(-1)
+    return torch.stack([
+        1 - 2 * (y * y + z * z), 2 * (x * y - w * z), 2 * (x * z + w * y),
+        2 * (x * y + w * z), 1 - 2 * (x * x + z * z), 2 * (y * z - w * x),
+        2 * (x * z - w * y), 2 * (y * z + w * x), 1 - 2 * (x * x + y * y),
+    ], dim=-1).reshape(-1, 3, 3)  # fmt: skip
+
+
+def densify_and_prune(state: TrainState, config: TrainConfig) -> dict[str, int]:
+    """Clone small and split large Gaussians with high view-space gradients; prune faint and
+    huge ones (3DGS ``densify_and_prune``). Returns how many were cloned, split and pruned."""
+    with torch.no_grad():
+        p = {k: v.detach() for k, v in state.params.items()}
+        grads = torch.where(state.grad_count > 0, state.grad_accum / state.grad_count.clamp_min(1), 0.0)
+        max_scale = p["log_scales"].exp().max(dim=1).values
+        cand = grads >= config.grad_threshold
+        room = max(0, config.max_gaussians - state.num_gaussians)
+        if int(cand.sum()) > room:  # over budget: keep the strongest gradients only
+            order = torch.argsort(torch.where(cand, grads, -1.0), descending=True)
+            cand = torch.zeros_like(cand)
+            cand[order[:room]] = True
+        large = max_scale > config.percent_dense * state.extent
+        clone, split = cand & ~large, cand & large
+        new = {k: v[clone] for k, v in p.items()}
+        # Split: two samples from each large Gaussian, 1.6x smaller (3DGS).
+        idx = torch.nonzero(split).squeeze(1)
+        gen = torch.Generator().manual_seed(int(config.seed) * 1_000_003 + state.step)
+        if len(idx):
+            s = p["log_scales"][idx].exp()
+            rot = _quat_to_rotmat(p["quats_wxyz"][idx])
+            for _ in range(2):
+                offs = torch.randn(s.shape, generator=gen) * s
+                new["means"] = torch.cat([new["means"], p["means"][idx] + (rot @ offs[:, :, None])[:, :, 0]])
+                new["log_scales"] = torch.cat([new["log_scales"], torch.log(s / 1.6)])
+                for k in ("quats_wxyz", "opacity_logits", "sh_dc", "sh_rest"):
+                    new[k] = torch.cat([new[k], p[k][idx]])
+        opacity = torch.sigmoid(p["opacity_logits"])
+        prune = split | (opacity < config.min_opacity)
+        if config.opacity_reset_every > 0 and state.step > config.opacity_reset_every:
+            prune |= state.max_radii > config.max_screen_radius_px
+        prune |= max_scale > config.max_world_scale * state.extent
+        # Never empty the model.
+        if bool(prune.all()) and not len(new["means"]):
+            prune[:] = False
+        stats = {"cloned": int(clone.sum()), "split": int(split.sum()), "pruned": int((prune & ~split).sum())}
+        _replace(state, ~prune, new)
+    return stats
+
+
+def reset_opacity(state: TrainState, config: TrainConfig) -> None:
+    """Clamp every opacity to at most ``opacity_reset_value`` (3DGS), zeroing its Adam moments."""
+    with torch.no_grad():
+        cap = math.log(config.opacity_reset_value / (1 - config.opacity_reset_value))
+        logits = state.params["opacity_logits"].detach().clamp(max=cap)
+        state.params["opacity_logits"] = logits.contiguous().requires_grad_(True)
+        state.exp_avg["opacity_logits"].zero_()
+        state.exp_avg_sq["opacity_logits"].zero_()
+
+
+def train(
+    state: TrainState,
+    views: TrainViews,
+    config: TrainConfig,
+    *,
+    until: int | None = None,
+    callback: Callable[[TrainState], None] | None = None,
+    time_budget_s: float | None = None,
+) -> TrainState:
+    """Run :func:`train_step` until ``until`` steps (default ``config.steps``) are done.
+
+    Args:
+        state: modified in place and returned (resume by passing a stored state).
+        views: the training views.
+        config: hyperparameters.
+        until: stop after this many total steps (for checkpointing in slices).
+        callback: called after every step with the state.
+        time_budget_s: stop early once this many seconds have passed (the state stays valid).
+    """
+    end = config.steps if until is None else min(until, config.steps)
+    start = time.perf_counter()
+    while state.step < end:
+        train_step(state, views, config)
+        if callback is not None:
+            callback(state)
+        if time_budget_s is not None and time.perf_counter() - start > time_budget_s:
+            break
+    return state
