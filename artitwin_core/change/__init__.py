@@ -1,0 +1,41 @@
+"""Change detection against the canonical model, and part / hand masks of the dynamic frames.
+
+``detect_changes`` compares an observed RGB-D frame with the canonical model rendered at its
+pose (any renderer). ``build_canonical_tsdf`` gives a geometric canonical model that needs no
+training. ``segment_parts`` runs the default, weight-free mask backend: moved parts from the
+vanished canonical surface (``segment_part_at_frame``), labelled backwards through the recording
+(``propagate_masks_backwards``). ``propagate_masks_sam2`` is the optional SAM2 backend.
+"""
+
+from artitwin_core.change._canonical import CanonicalMesh, build_canonical_tsdf
+from artitwin_core.change._detect import ChangeConfig, ChangeMaps, detect_changes
+from artitwin_core.change._parts import (
+    FrameView,
+    PartConfig,
+    PartModel,
+    PartSegmentation,
+    find_moved_parts,
+    frame_views,
+    propagate_masks_backwards,
+    segment_part_at_frame,
+    segment_parts,
+)
+from artitwin_core.change._sam2 import propagate_masks_sam2
+
+__all__ = [
+    "CanonicalMesh",
+    "ChangeConfig",
+    "ChangeMaps",
+    "FrameView",
+    "PartConfig",
+    "PartModel",
+    "PartSegmentation",
+    "build_canonical_tsdf",
+    "detect_changes",
+    "find_moved_parts",
+    "frame_views",
+    "propagate_masks_backwards",
+    "propagate_masks_sam2",
+    "segment_part_at_frame",
+    "segment_parts",
+]

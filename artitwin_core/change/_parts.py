@@ -1,0 +1,759 @@
+"""Find the parts that moved, fit their rigid motion, and label them in every dynamic frame.
+
+The closed part is the canonical surface that vanished: in the dynamic frames, where we now see
+farther than the canonical surface, that surface has moved away. Votes over frames collect it
+(``find_moved_parts``). At a reference frame (the one where the part is most open) its motion is
+found by scoring door and drawer hypotheses (hinges on either outline edge, slides along the
+front normal) against the observed depth, then refined by robust ICP; the motion defines a 1-DOF
+joint (``segment_part_at_frame``). Going backwards from the last frame, each frame's joint
+state is searched near the next frame's, so the part closes smoothly in the labels
+(``propagate_masks_backwards``). A pixel is part k when the moved part model is the first
+surface there and the observed depth agrees; it is hand when the observation lies in front of
+everything the model predicts. The hand cannot be labelled part by moving rigidly with it, since
+only the rigid model decides what is part.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field, replace
+
+import cv2
+import numpy as np
+import open3d as o3d
+from scipy.spatial import cKDTree
+
+from artitwin_core._errors import InputError
+from artitwin_core.capture import Capture
+from artitwin_core.change._canonical import CanonicalMesh
+from artitwin_core.change._detect import ChangeConfig, depth_tolerance, remove_small
+from artitwin_core.geometry import axis_angle_to_matrix, make_se3
+from artitwin_core.masks import MaskSequence
+from artitwin_core.registration import backproject
+
+_reg = o3d.pipelines.registration
+
+
+@dataclass(frozen=True)
+class PartConfig:
+    """Hyperparameters of the part finder and mask propagation.
+
+    Attributes:
+        change: depth tolerances shared with :func:`detect_changes`.
+        vanish_voxel_m: voxel size for voting on vanished canonical surface (metres).
+        vanish_opening_px: radius of a morphological opening of each frame's vanished pixels.
+        min_vanish_frames: a voxel is part of a moved part if it vanished in this many frames.
+        cluster_eps_m: vanished voxels closer than this belong to the same part (metres).
+        min_part_voxels: smaller clusters are ignored (noise at depth edges).
+        sample_m: spacing of the part's surface samples (metres).
+        max_rotation_rad, max_translation_m: range of the door / drawer hypotheses.
+        support_distance_m: an observed point this close (3D, plus 5 mm per m^2 of depth)
+            supports a part sample.
+        violation_weight: how much a see-through pixel (observed behind the part) costs in the
+            score relative to a supporting pixel.
+        num_refined: best coarse hypotheses refined by ICP at the reference frame.
+        search_window: backwards propagation searches the joint state within this fraction of
+            the reference state around the next frame's state (and always tries closed).
+        part_thickness_m: how far in front of the part's front-face samples its back face or
+            edges may be seen (metres, before the grazing-angle factor).
+        part_depth_tol_m, part_depth_tol_per_m2: how much nearer than the part model the
+            observation may be and still be the part (a hand on the part is nearer).
+        grow_distance_m: at the reference frame, changed observed points within this distance of
+            the moved part (and behind its front face once moved back) join the part: edges,
+            drawer sides and insides that the vanished canonical surface lacks.
+        max_part_radius_m: grown points stay within this distance of the part's centre.
+        hand_min_px: hand regions smaller than this (pixels, RGB resolution) are dropped.
+    """
+
+    change: ChangeConfig = field(default_factory=ChangeConfig)
+    vanish_voxel_m: float = 0.02
+    min_vanish_frames: int = 2
+    vanish_opening_px: int = 0
+    cluster_eps_m: float = 0.05
+    min_part_voxels: int = 60
+    sample_m: float = 0.01
+    max_rotation_rad: float = 2.0
+    max_translation_m: float = 0.7
+    violation_weight: float = 2.0
+    support_distance_m: float = 0.025
+    search_window: float = 0.35
+    num_refined: int = 6
+    hand_min_px: int = 30
+    part_thickness_m: float = 0.01
+    part_depth_tol_m: float = 0.015
+    part_depth_tol_per_m2: float = 0.005
+    grow_distance_m: float = 0.03
+    max_part_radius_m: float = 1.2
+
+
+@dataclass(frozen=True)
+class PartModel:
+    """One moving part: its closed surface samples and its 1-DOF motion.
+
+    Attributes:
+        closed_points: ``[N, 3]`` metres, samples of the part's surface when closed (canonical).
+        joint_type: ``"revolute"`` or ``"prismatic"``.
+        axis: ``[3]`` unit joint axis (canonical frame).
+        pivot: ``[3]`` a point on the axis (revolute), metres.
+        reference_frame: the frame whose motion defined the joint.
+        reference_q: the joint state there (radians or metres, signed along ``axis``).
+        onset_frame: first frame in which the part was seen to have moved.
+        front_normal: ``[3]`` unit outward normal of the closed front face (canonical frame).
+    """
+
+    closed_points: np.ndarray
+    joint_type: str
+    axis: np.ndarray
+    pivot: np.ndarray
+    reference_frame: int
+    reference_q: float
+    onset_frame: int
+    front_normal: np.ndarray
+
+    def motion(self, q: float) -> np.ndarray:
+        """``[4, 4]`` canonical-from-closed transform at joint state ``q``."""
+        if self.joint_type == "prismatic":
+            return make_se3(np.eye(3), self.axis * q)
+        rot = axis_angle_to_matrix(self.axis, q)
+        return make_se3(rot, self.pivot - rot @ self.pivot)
+
+
+@dataclass
+class FrameView:
+    """One dynamic frame in the canonical frame: observed depth and the canonical rendering.
+
+    Attributes:
+        world_from_camera: ``[4, 4]`` camera pose in the canonical frame.
+        depth_intrinsics: ``(fx, fy, cx, cy)`` at depth resolution.
+        observed_depth, rendered_depth: ``[h, w]`` float32 metres, NaN invalid.
+    """
+
+    world_from_camera: np.ndarray
+    depth_intrinsics: np.ndarray
+    observed_depth: np.ndarray
+    rendered_depth: np.ndarray
+    cache: dict = field(default_factory=dict, repr=False)
+
+
+def frame_views(dynamic: Capture, canonical_from_session: np.ndarray, mesh: CanonicalMesh) -> list[FrameView]:
+    """Render the canonical mesh at every dynamic pose (depth resolution)."""
+    h, w = dynamic.depth.shape[1:]
+    out = []
+    for t in range(dynamic.num_frames):
+        pose = canonical_from_session @ dynamic.world_from_camera[t]
+        _, depth, _ = mesh.render(pose, dynamic.depth_intrinsics[t], w, h)
+        obs = np.where(dynamic.depth[t] > 0, dynamic.depth[t], np.nan).astype(np.float32)
+        out.append(FrameView(pose, dynamic.depth_intrinsics[t], obs, depth))
+    return out
+
+
+def _to_world(view: FrameView, depth: np.ndarray, mask: np.ndarray) -> np.ndarray:
+    d = np.where(mask, depth, np.nan)
+    pts, _ = backproject(d, view.depth_intrinsics)
+    return pts @ view.world_from_camera[:3, :3].T + view.world_from_camera[:3, 3]
+
+
+def find_moved_parts(views: list[FrameView], config: PartConfig | None = None) -> list[tuple[np.ndarray, int]]:
+    """Closed surfaces of the parts that moved: canonical surface seen vanished in several frames.
+
+    Returns:
+        per part, best first in onset order: closed surface samples ``[N, 3]`` (canonical frame,
+        metres) and the onset frame index.
+    """
+    cfg = config or PartConfig()
+    vox = cfg.vanish_voxel_m
+    keys, frames, points = [], [], []
+    kernel = np.ones((2 * cfg.vanish_opening_px + 1,) * 2, np.uint8)
+    for t, v in enumerate(views):
+        diff = v.rendered_depth - v.observed_depth
+        farther = np.isfinite(diff) & (diff < -depth_tolerance(v.rendered_depth, cfg.change))
+        if cfg.vanish_opening_px > 0:
+            # Opening drops thin strips along depth edges, where small pose errors look like change;
+            # it also drops the thin hole a drawer seen head-on leaves, so it is off by default and
+            # the votes over frames and the cluster size reject the edge noise instead.
+            farther = cv2.morphologyEx(farther.astype(np.uint8), cv2.MORPH_OPEN, kernel).astype(bool)
+        if not farther.any():
+            continue
+        p = _to_world(v, v.rendered_depth, farther)
+        k = np.floor(p / vox).astype(np.int64)
+        keys.append(k)
+        frames.append(np.full(len(k), t))
+        points.append(p)
+    if not keys:
+        return []
+    keys_all = np.concatenate(keys)
+    frames_all = np.concatenate(frames)
+    points_all = np.concatenate(points)
+    # Count distinct frames per voxel.
+    pairs = np.unique(np.concatenate([keys_all, frames_all[:, None]], 1), axis=0)
+    vkeys, inv_pairs, counts = np.unique(pairs[:, :3], axis=0, return_inverse=True, return_counts=True)
+    good = counts >= cfg.min_vanish_frames
+    if good.sum() < cfg.min_part_voxels:
+        return []
+    first_frame = np.full(len(vkeys), np.iinfo(np.int64).max)
+    np.minimum.at(first_frame, inv_pairs.ravel(), pairs[:, 3])
+    centres = (vkeys[good] + 0.5) * vox
+    cloud = o3d.geometry.PointCloud(o3d.utility.Vector3dVector(centres))
+    labels = np.asarray(cloud.cluster_dbscan(eps=cfg.cluster_eps_m, min_points=4))
+    good_keys = vkeys[good]
+    good_first = first_frame[good]
+    # Map each vanished point to its voxel's cluster label.
+    lut = {tuple(k): i for i, k in enumerate(good_keys)}
+    pk = np.floor(points_all / vox).astype(np.int64)
+    idx = np.array([lut.get(tuple(k), -1) for k in pk])
+    parts = []
+    for lab in range(labels.max() + 1 if len(labels) else 0):
+        members = labels == lab
+        if members.sum() < cfg.min_part_voxels:
+            continue
+        sel = idx >= 0
+        sel[sel] = labels[idx[sel]] == lab
+        pc = o3d.geometry.PointCloud(o3d.utility.Vector3dVector(points_all[sel])).voxel_down_sample(cfg.sample_m)
+        # Onset: the frame by which a tenth of the part's voxels had vanished.
+        onset = int(np.quantile(good_first[members], 0.1))
+        parts.append((np.asarray(pc.points), onset))
+    parts.sort(key=lambda p: (p[1], -len(p[0])))
+    return parts
+
+
+def _frame_cloud(view: FrameView, config: PartConfig):
+    """Observed points of a frame (canonical frame), whether each is a change, and a KD-tree."""
+    if view.cache.get("cloud") is None:
+        valid = np.isfinite(view.observed_depth)
+        pts = _to_world(view, view.observed_depth, valid)
+        diff = (view.rendered_depth - view.observed_depth)[valid]
+        tol = depth_tolerance(view.observed_depth[valid], config.change)
+        # Unknown canonical depth (never seen in the static recording) is not evidence of change.
+        changed = np.isfinite(diff) & (np.abs(diff) > tol)
+        view.cache["cloud"] = (pts, changed, cKDTree(pts) if len(pts) else None)
+    return view.cache["cloud"]
+
+
+def motion_score(
+    view: FrameView, moved: np.ndarray, closed: np.ndarray, config: PartConfig
+) -> tuple[float, int, int]:
+    """How well part samples moved to ``moved [N, 3]`` (from ``closed [N, 3]``, canonical frame)
+    explain one frame's observation.
+
+    A visible sample supports the motion when an observed point lies within
+    ``support_distance_m`` of it in 3D (3D, not along the ray: a thin part seen at a grazing angle
+    shows its back face far along the ray) and that observed point is a change, unless the
+    sample has not moved (a closed part matches the canonical surface). It contradicts the
+    motion when the observation lies behind it (we see through where the part would be).
+
+    Returns:
+        score (supporting minus weighted see-through samples), supporting count, see-through count.
+    """
+    cam = (moved - view.world_from_camera[:3, 3]) @ view.world_from_camera[:3, :3]
+    fx, fy, cx, cy = view.depth_intrinsics
+    z = cam[:, 2]
+    ok = z > 0.05
+    zs = np.where(ok, z, 1.0)
+    u = np.rint(cam[:, 0] / zs * fx + cx).astype(np.int64)
+    v = np.rint(cam[:, 1] / zs * fy + cy).astype(np.int64)
+    h, w = view.observed_depth.shape
+    ok &= (u >= 0) & (u < w) & (v >= 0) & (v < h)
+    idx = np.nonzero(ok)[0]
+    if len(idx) == 0:
+        return 0.0, 0, 0
+    pix = v[idx] * w + u[idx]
+    # One vote per pixel: the nearest sample (the part hides its own back).
+    order = np.lexsort((z[idx], pix))
+    first = np.ones(len(order), bool)
+    first[1:] = pix[order][1:] != pix[order][:-1]
+    idx = idx[order][first]
+    obs = view.observed_depth[v[idx], u[idx]]
+    tol = depth_tolerance(z[idx], config.change)
+    through = int(np.sum(obs > z[idx] + tol))
+    pts, changed, tree = _frame_cloud(view, config)
+    if tree is None:
+        return -config.violation_weight * through, 0, through
+    dist, nn = tree.query(moved[idx], distance_upper_bound=0.2)
+    near = dist < config.support_distance_m + 0.005 * z[idx] ** 2
+    still = np.linalg.norm(moved[idx] - closed[idx], axis=1) < 0.03
+    support = int(np.sum(near & (still | changed[np.minimum(nn, len(changed) - 1)])))
+    return support - config.violation_weight * through, support, through
+
+
+def _scoring_subset(points: np.ndarray, n: int = 1500) -> np.ndarray:
+    """At most ``n`` of ``points``, evenly strided (deterministic), to keep scoring cheap."""
+    step = max(1, int(np.ceil(len(points) / n)))
+    return points[::step]
+
+
+def _front_normal(
+    points: np.ndarray, towards: np.ndarray, mesh: CanonicalMesh | None = None
+) -> tuple[np.ndarray, np.ndarray]:
+    """Outward unit normal of a closed part's front (towards ``towards``) and its centroid.
+
+    From the canonical mesh's normals where given (a thin strip of vanished surface, as a drawer
+    seen head-on leaves, has no reliable PCA normal), else the PCA of the samples."""
+    centroid = points.mean(0)
+    n = None
+    if mesh is not None:
+        res = mesh._scene.compute_closest_points(o3d.core.Tensor(points.astype(np.float32)))
+        normals = res["primitive_normals"].numpy().astype(np.float64)
+        normals *= np.sign(normals @ (towards - centroid))[:, None] + (normals @ (towards - centroid) == 0)[:, None]
+        mean = normals.mean(0)
+        if np.linalg.norm(mean) > 0.5:
+            n = mean / np.linalg.norm(mean)
+    if n is None:
+        _, vecs = np.linalg.eigh(np.cov((points - centroid).T))
+        n = vecs[:, 0]
+    if n @ (towards - centroid) < 0:
+        n = -n
+    return n, centroid
+
+
+def _hypotheses(points: np.ndarray, n: np.ndarray, up: np.ndarray, cfg: PartConfig):
+    """Door, flap and drawer motions ``(type, axis, pivot, q)`` of a closed front surface.
+
+    Parts open outwards: a drawer slides along the front normal, a door or flap swings its free
+    edge out of the furniture (the other way it would pass through the carcass).
+    """
+    c = points.mean(0)
+    out = []
+    for q in np.arange(0.02, cfg.max_translation_m + 1e-9, 0.01):
+        out.append(("prismatic", n, c, float(q)))
+    side = np.cross(up, n)
+    if np.linalg.norm(side) > 0.3:
+        side /= np.linalg.norm(side)
+        hinge_dirs = [(up, side), (side, up)]  # vertical hinge at a side edge; horizontal at top/bottom
+    else:
+        hinge_dirs = []
+    angles = np.deg2rad(np.arange(3.0, np.rad2deg(cfg.max_rotation_rad) + 1e-9, 3.0))
+    for axis, across in hinge_dirs:
+        s = (points - c) @ across
+        for edge in (s.min(), s.max()):
+            pivot = c + across * edge
+            # Small rotation: the centroid moves along axis x (c - pivot); keep the outward sign.
+            sign = 1.0 if np.cross(axis, c - pivot) @ n > 0 else -1.0
+            for a in angles:
+                out.append(("revolute", axis, pivot, float(sign * a)))
+    return out
+
+
+def _joint_from_motion(m: np.ndarray, centre: np.ndarray):
+    """A 1-DOF joint ``(type, axis, pivot, q)`` reproducing the rigid motion ``m`` [4, 4]."""
+    rot, t = m[:3, :3], m[:3, 3]
+    angle = float(np.arccos(np.clip((np.trace(rot) - 1) / 2, -1, 1)))
+    if angle < np.deg2rad(3.0):
+        dist = float(np.linalg.norm(t))
+        return "prismatic", t / max(dist, 1e-9), centre.copy(), dist
+    axis = np.array([rot[2, 1] - rot[1, 2], rot[0, 2] - rot[2, 0], rot[1, 0] - rot[0, 1]])
+    axis /= np.linalg.norm(axis)
+    # Pivot: least-squares solution of (I - R) p = t, moved to the point nearest the part.
+    p = np.linalg.lstsq(np.eye(3) - rot, t, rcond=None)[0]
+    p = p + axis * (axis @ (centre - p))
+    return "revolute", axis, p, angle
+
+
+def _observed_cloud(view: FrameView) -> o3d.geometry.PointCloud:
+    pts = _to_world(view, view.observed_depth, np.isfinite(view.observed_depth))
+    pc = o3d.geometry.PointCloud(o3d.utility.Vector3dVector(pts)).voxel_down_sample(0.01)
+    pc.estimate_normals(o3d.geometry.KDTreeSearchParamHybrid(radius=0.04, max_nn=30))
+    return pc
+
+
+def _hole_counts(closed_points: np.ndarray, views: list[FrameView], cfg: PartConfig) -> np.ndarray:
+    """``[T]`` how many pixels per frame see through the part's closed surface (how open and how
+    visible the part is there)."""
+    tree = cKDTree(closed_points)
+    counts = np.zeros(len(views), int)
+    for t, v in enumerate(views):
+        diff = v.rendered_depth - v.observed_depth
+        farther = np.isfinite(diff) & (diff < -depth_tolerance(v.rendered_depth, cfg.change))
+        if farther.any():
+            d, _ = tree.query(_to_world(v, v.rendered_depth, farther), distance_upper_bound=0.03)
+            counts[t] = int(np.isfinite(d).sum())
+    return counts
+
+
+def fit_part_motion(
+    closed_points: np.ndarray,
+    onset_frame: int,
+    views: list[FrameView],
+    *,
+    gravity=(0.0, -1.0, 0.0),
+    reference_frame: int | None = None,
+    mesh: CanonicalMesh | None = None,
+    config: PartConfig | None = None,
+) -> PartModel:
+    """Fit the part's motion at a reference frame and the 1-DOF joint it implies.
+
+    Args:
+        closed_points: ``[N, 3]`` closed surface samples (canonical frame, metres).
+        onset_frame: first frame the part had moved.
+        views: every dynamic frame (:func:`frame_views`).
+        gravity: ``[3]`` gravity direction in the canonical frame.
+        reference_frame: frame to fit at. Default: the last frame, or one of the two frames
+            where most of the part's former surface is seen through, whichever the fitted motion
+            explains best (at the last frame a door may be edge-on or out of view).
+        mesh: the canonical mesh; keeps the part's growth out of the static free space.
+    """
+    cfg = config or PartConfig()
+    up = -np.asarray(gravity, dtype=np.float64)
+    up /= np.linalg.norm(up)
+    if reference_frame is not None:
+        frames = [int(reference_frame)]
+    else:
+        counts = _hole_counts(closed_points, views, cfg)
+        frames = [len(views) - 1] + [int(t) for t in np.argsort(-counts)[:2] if counts[t] > 0]
+    best, best_score = None, -np.inf
+    for r in dict.fromkeys(frames):
+        model, score = _fit_at(closed_points, onset_frame, views[r], r, up, cfg, mesh)
+        if score > best_score:
+            best, best_score = model, score
+    return _grow_part(best, views[best.reference_frame], cfg, mesh)
+
+
+def _fit_at(
+    closed_points: np.ndarray, onset_frame: int, view: FrameView, r: int, up: np.ndarray, cfg: PartConfig,
+    mesh: CanonicalMesh | None,
+) -> tuple[PartModel, float]:
+    sub = _scoring_subset(closed_points)
+    # Coarse: a loose support distance, since the hinge and front found from the vanished surface
+    # are a few centimetres off; the best few hypotheses then go through robust ICP.
+    loose = replace(cfg, support_distance_m=2.5 * cfg.support_distance_m)
+    normal, _ = _front_normal(closed_points, view.world_from_camera[:3, 3], mesh)
+    hyps = []
+    for jt, axis, pivot, q in _hypotheses(closed_points, normal, up, cfg):
+        model = PartModel(closed_points, jt, axis, pivot, r, q, onset_frame, normal)
+        m = model.motion(q)
+        hyps.append((motion_score(view, sub @ m[:3, :3].T + m[:3, 3], sub, loose)[0], model))
+    if not hyps:
+        raise InputError("fit_part_motion: no part hypotheses; the part's surface samples are empty.")
+    hyps.sort(key=lambda h: -h[0])
+    src = o3d.geometry.PointCloud(o3d.utility.Vector3dVector(closed_points))
+    tgt = _observed_cloud(view)
+    est = _reg.TransformationEstimationPointToPlane(_reg.TukeyLoss(k=0.02))
+    crit = _reg.ICPConvergenceCriteria(max_iteration=40)
+    best, best_score = hyps[0][1], -np.inf
+    for _, coarse in hyps[: cfg.num_refined]:
+        model = _local_refine(coarse, view, sub, cfg)
+        init = model.motion(model.reference_q)
+        candidates = [model]
+        for dist in (0.08, 0.04):
+            init = _reg.registration_icp(src, tgt, dist, init, est, crit).transformation
+        jt, axis, pivot, q = _joint_from_motion(init, closed_points.mean(0))
+        candidates.append(PartModel(closed_points, jt, axis, pivot, r, q, onset_frame, normal))
+        for cand in candidates:
+            m = cand.motion(cand.reference_q)
+            score = motion_score(view, sub @ m[:3, :3].T + m[:3, 3], sub, cfg)[0]
+            if score > best_score:
+                best, best_score = cand, score
+    return best, best_score
+
+
+def _local_refine(model: PartModel, view: FrameView, sub: np.ndarray, cfg: PartConfig) -> PartModel:
+    """Best nearby variant of a coarse hypothesis under the strict score: the hinge shifted a few
+    centimetres across and behind the front (the vanished surface misses the rim, and hinges sit
+    at the back of the door), the angle or slide a little changed."""
+
+    def score(m: PartModel) -> float:
+        t = m.motion(m.reference_q)
+        return motion_score(view, sub @ t[:3, :3].T + t[:3, 3], sub, cfg)[0]
+
+    best, best_score = model, score(model)
+    if model.joint_type == "prismatic":
+        for dq in np.arange(-0.03, 0.0301, 0.005):
+            cand = replace(model, reference_q=model.reference_q + dq)
+            sc = score(cand)
+            if sc > best_score:
+                best, best_score = cand, sc
+        return best
+    across = np.cross(model.axis, model.front_normal)
+    across /= max(np.linalg.norm(across), 1e-9)
+    for da in np.arange(-0.06, 0.0601, 0.02):
+        for dn in (-0.03, -0.015, 0.0):
+            pivot = model.pivot + across * da + model.front_normal * dn
+            for dq in np.radians([-6.0, -4.0, -2.0, 0.0, 2.0, 4.0, 6.0]):
+                cand = replace(model, pivot=pivot, reference_q=model.reference_q + dq)
+                sc = score(cand)
+                if sc > best_score:
+                    best, best_score = cand, sc
+    return best
+
+
+def _grow_part(model: PartModel, view: FrameView, cfg: PartConfig, mesh: CanonicalMesh | None) -> PartModel:
+    """Add the observed changed surface that moves with the part at the reference frame.
+
+    The vanished canonical surface misses the part's rim (depth edges) and everything the
+    closed part hid (a drawer's sides and inside). Changed observed points next to the moved part
+    join it if, moved back to the closed state, they lie behind the front face (inside the
+    furniture): a hand on the handle lies in front of it and stays out.
+    """
+    pts, changed, _ = _frame_cloud(view, cfg)
+    cand = pts[changed]
+    if len(cand) == 0:
+        return model
+    m = model.motion(model.reference_q)
+    inv_rot, inv_t = m[:3, :3].T, -m[:3, :3].T @ m[:3, 3]
+    back = cand @ inv_rot.T + inv_t
+    n = model.front_normal
+    front_level = np.quantile(model.closed_points @ n, 0.9)
+    behind = back @ n < front_level + 0.01
+    # Only a part-sized neighbourhood: the growth must not run along the whole room.
+    centre = model.closed_points.mean(0)
+    near = np.linalg.norm(back - centre, axis=1) < cfg.max_part_radius_m
+    ok = behind & near
+    if mesh is not None and ok.any():
+        ok[ok] = mesh.signed_distance(back[ok]) < 0.015
+    members = model.closed_points
+    added = np.zeros(len(back), bool)
+    for _ in range(15):  # region growing, a few centimetres per round
+        tree = cKDTree(np.concatenate([members, back[added]]))
+        d, _ = tree.query(back, distance_upper_bound=cfg.grow_distance_m)
+        new = ok & ~added & np.isfinite(d)
+        if not new.any():
+            break
+        added |= new
+    if not added.any():
+        return model
+    grown = o3d.geometry.PointCloud(o3d.utility.Vector3dVector(np.concatenate([members, back[added]])))
+    grown = np.asarray(grown.voxel_down_sample(cfg.sample_m).points)
+    return replace(model, closed_points=grown)
+
+
+def _best_state(model: PartModel, view: FrameView, centre_q: float, cfg: PartConfig) -> tuple[float, float]:
+    """Joint state near ``centre_q`` (and closed) that best explains ``view``; and its score in [0, 1]."""
+    span = cfg.search_window * abs(model.reference_q)
+    lo, hi = sorted((0.0, model.reference_q * 1.1))
+    grid = np.unique(np.clip(np.concatenate([np.linspace(centre_q - span, centre_q + span, 41), [0.0]]), lo, hi))
+
+    sub = _scoring_subset(model.closed_points)
+
+    def evaluate(q):
+        m = model.motion(q)
+        return motion_score(view, sub @ m[:3, :3].T + m[:3, 3], sub, cfg)
+
+    scores = [evaluate(q) for q in grid]
+    i = int(np.argmax([s[0] for s in scores]))
+    q = float(grid[i])
+    step = (grid[1] - grid[0]) if len(grid) > 1 else 0.0
+    for q2 in np.linspace(q - step, q + step, 9):
+        if lo <= q2 <= hi:
+            s2 = evaluate(q2)
+            if s2[0] > scores[i][0]:
+                q, scores[i] = float(q2), s2
+    _, sup, thr = scores[i]
+    if sup + thr == 0:
+        return centre_q, 0.0  # out of view: keep the state
+    return q, sup / (sup + thr)
+
+
+def _splat(points: np.ndarray, pose: np.ndarray, intr, width: int, height: int, spacing: float) -> np.ndarray:
+    """Z-buffer ``[H, W]`` of surface samples drawn as squares about their spacing wide (NaN empty)."""
+    cam = (points - pose[:3, 3]) @ pose[:3, :3]
+    fx, fy, cx, cy = intr
+    z = cam[:, 2]
+    keep = z > 0.05
+    cam, z = cam[keep], z[keep]
+    u = cam[:, 0] / z * fx + cx
+    v = cam[:, 1] / z * fy + cy
+    rad = np.ceil(0.6 * spacing * fx / z).astype(np.int64)
+    depth = np.full(height * width, np.inf)
+    for r in np.unique(rad):
+        sel = rad == r
+        ui, vi, zi = np.rint(u[sel]).astype(np.int64), np.rint(v[sel]).astype(np.int64), z[sel]
+        for dy in range(-r, r + 1):
+            for dx in range(-r, r + 1):
+                uu, vv = ui + dx, vi + dy
+                ok = (uu >= 0) & (uu < width) & (vv >= 0) & (vv < height)
+                np.minimum.at(depth, vv[ok] * width + uu[ok], zi[ok])
+    depth = depth.reshape(height, width)
+    return np.where(np.isfinite(depth), depth, np.nan)
+
+
+def label_frame(
+    models: list[PartModel],
+    states: list[float],
+    pose: np.ndarray,
+    rgb_intrinsics,
+    rgb_size: tuple[int, int],
+    observed_depth: np.ndarray,
+    static_depth: np.ndarray,
+    config: PartConfig | None = None,
+) -> tuple[np.ndarray, np.ndarray]:
+    """Part labels and hand mask of one frame at RGB resolution.
+
+    Args:
+        models, states: the parts and their joint states at this frame.
+        pose: ``[4, 4]`` camera in the canonical frame.
+        rgb_intrinsics: ``(fx, fy, cx, cy)`` at RGB resolution.
+        rgb_size: ``(width, height)``.
+        observed_depth: ``[h, w]`` observed depth (metres), resampled to RGB resolution here.
+        static_depth: ``[H, W]`` canonical model depth with the parts' closed surfaces removed
+            (NaN there and where nothing is).
+
+    Returns:
+        part ``[H, W]`` uint8 (k + 1 for part k) and hand ``[H, W]`` bool.
+    """
+    cfg = config or PartConfig()
+    width, height = rgb_size
+    obs = cv2.resize(observed_depth.astype(np.float32), (width, height), interpolation=cv2.INTER_NEAREST)
+    best = np.full((height, width), np.inf)
+    label = np.zeros((height, width), np.uint8)
+    margin = np.zeros((height, width))
+    for k, (model, q) in enumerate(zip(models, states, strict=True)):
+        m = model.motion(q)
+        moved = model.closed_points @ m[:3, :3].T + m[:3, 3]
+        d = _splat(moved, pose, rgb_intrinsics, width, height, cfg.sample_m)
+        nearer = np.isfinite(d) & (d < best)
+        best[nearer] = d[nearer]
+        label[nearer] = k + 1
+        # The samples lie on the front face; seen at a grazing angle, the part's back face or edge
+        # is up to thickness / cos(incidence) nearer along the ray.
+        c = model.closed_points.mean(0)
+        ray = m[:3, :3] @ c + m[:3, 3] - pose[:3, 3]
+        cos = abs((m[:3, :3] @ model.front_normal) @ ray) / max(np.linalg.norm(ray), 1e-9)
+        margin[nearer] = min(cfg.part_thickness_m / max(cos, 0.2), 0.12)
+    tol_static = depth_tolerance(static_depth, cfg.change)
+    in_front_of_static = ~np.isfinite(static_depth) | (best < static_depth + tol_static)
+    tol = depth_tolerance(np.where(np.isfinite(best), best, 0.0), cfg.change)
+    tight = cfg.part_depth_tol_m + cfg.part_depth_tol_per_m2 * np.where(np.isfinite(best), best, 0.0) ** 2
+    agrees = ~np.isfinite(obs) | ((obs < best + tol) & (obs > best - tight - margin))
+    part = np.where((label > 0) & in_front_of_static & agrees, label, 0).astype(np.uint8)
+    part_closed = cv2.morphologyEx(part, cv2.MORPH_CLOSE, np.ones((3, 3), np.uint8))
+    part = np.where((part == 0) & (part_closed > 0) & (label == part_closed), part_closed, part)
+
+    predicted = np.fmin(np.where(np.isfinite(best), best, np.nan), static_depth)
+    hand = np.isfinite(obs) & np.isfinite(predicted) & (obs < predicted - depth_tolerance(predicted, cfg.change))
+    hand &= part == 0
+    hand = cv2.morphologyEx(hand.astype(np.uint8), cv2.MORPH_OPEN, np.ones((3, 3), np.uint8)).astype(bool)
+    return part, remove_small(hand, cfg.hand_min_px)
+
+
+def _static_depth_without_parts(
+    mesh: CanonicalMesh, part_triangles: np.ndarray, pose: np.ndarray, intr, width: int, height: int
+) -> np.ndarray:
+    _, depth, tri = mesh.render(pose, intr, width, height)
+    hit_part = np.zeros_like(tri, dtype=bool)
+    ok = tri >= 0
+    hit_part[ok] = part_triangles[tri[ok]]
+    return np.where(hit_part, np.nan, depth)
+
+
+def part_triangles(mesh: CanonicalMesh, models: list[PartModel], radius_m: float = 0.03) -> np.ndarray:
+    """``[F]`` bool: canonical triangles lying on a part's closed surface (within ``radius_m``)."""
+    out = np.zeros(len(mesh.triangles), bool)
+    if not models:
+        return out
+    centroids = mesh.vertices[mesh.triangles].mean(1)
+    tree = cKDTree(np.concatenate([m.closed_points for m in models]))
+    d, _ = tree.query(centroids, distance_upper_bound=radius_m)
+    return np.isfinite(d)
+
+
+@dataclass(frozen=True)
+class PartSegmentation:
+    """What ``segment_parts`` found.
+
+    Attributes:
+        masks: per-frame part labels, hand masks and scores (RGB resolution).
+        models: the moving parts, in onset order (label k + 1 is ``models[k]``).
+        states: ``[T, K]`` joint state of each part per frame (radians or metres).
+    """
+
+    masks: MaskSequence
+    models: list[PartModel]
+    states: np.ndarray
+
+
+def segment_part_at_frame(
+    views: list[FrameView],
+    frame: int | None = None,
+    *,
+    gravity=(0.0, -1.0, 0.0),
+    mesh: CanonicalMesh | None = None,
+    config: PartConfig | None = None,
+) -> list[PartModel]:
+    """Find the moved parts and fit each one's motion at ``frame`` (default: the last frame).
+
+    The changed region at that frame is explained by rigid part motions only; what is in front
+    of the moved parts and the static scene (hand, arm) is not part.
+
+    Args:
+        views: every dynamic frame (:func:`frame_views`), canonical frame.
+        frame: the reference frame.
+        gravity: ``[3]`` gravity direction in the canonical frame.
+        mesh: the canonical mesh (optional; sharper part extents).
+
+    Returns:
+        the parts in onset order; empty when nothing moved.
+    """
+    cfg = config or PartConfig()
+    models = []
+    for pts, onset in find_moved_parts(views, cfg):
+        models.append(fit_part_motion(pts, onset, views, gravity=gravity, reference_frame=frame, mesh=mesh, config=cfg))
+    return models
+
+
+def propagate_masks_backwards(
+    models: list[PartModel],
+    views: list[FrameView],
+    dynamic: Capture,
+    mesh: CanonicalMesh,
+    config: PartConfig | None = None,
+) -> PartSegmentation:
+    """Label every frame, from the reference frame (normally the last) back to the first,
+    tracking each part's joint state.
+
+    Each frame's state is searched near the following frame's (within ``search_window`` of the
+    reference state, and closed), so the labels follow the part as it closes. Frames after a
+    reference frame that is not the last are tracked forwards the same way.
+
+    Args:
+        models: the parts (:func:`segment_part_at_frame`), fitted at the last frame.
+        views: every dynamic frame (:func:`frame_views`).
+        dynamic: the dynamic recording (RGB size and intrinsics).
+        mesh: the canonical mesh (for what the parts hide or reveal).
+    """
+    cfg = config or PartConfig()
+    n = len(views)
+    if n != dynamic.num_frames:
+        raise InputError(f"propagate_masks_backwards: {n} views for a recording of {dynamic.num_frames} frames.")
+    width, height = dynamic.rgb_size
+    tris = part_triangles(mesh, models, radius_m=1.5 * cfg.vanish_voxel_m)
+    states = np.zeros((n, len(models)))
+    scores = np.zeros((n, len(models)))
+    for k, model in enumerate(models):
+        r = min(model.reference_frame, n - 1)
+        order = list(range(r, -1, -1)) + list(range(r + 1, n))
+        current = model.reference_q
+        for t in order:
+            if t == r + 1:
+                current = states[r, k]  # forwards again from the reference state
+            current, scores[t, k] = _best_state(model, views[t], current, cfg)
+            states[t, k] = current
+    part = np.zeros((n, height, width), np.uint8)
+    hand = np.zeros((n, height, width), bool)
+    for t in range(n):
+        static_d = _static_depth_without_parts(mesh, tris, views[t].world_from_camera, dynamic.rgb_intrinsics[t],
+                                               width, height)
+        part[t], hand[t] = label_frame(models, list(states[t]), views[t].world_from_camera,
+                                       dynamic.rgb_intrinsics[t], (width, height), views[t].observed_depth,
+                                       static_d, cfg)
+    score = scores.min(1) if len(models) else np.zeros(n)
+    return PartSegmentation(MaskSequence(part, hand, score.astype(np.float32)), models, states)
+
+
+def segment_parts(
+    dynamic: Capture,
+    canonical_from_session: np.ndarray,
+    mesh: CanonicalMesh,
+    *,
+    gravity=(0.0, -1.0, 0.0),
+    config: PartConfig | None = None,
+) -> PartSegmentation:
+    """Part and hand masks for every dynamic frame, with the default geometric backend.
+
+    Args:
+        dynamic: the dynamic recording (its own session frame).
+        canonical_from_session: ``[4, 4]`` from :func:`register_recordings`.
+        mesh: the canonical model (:func:`build_canonical_tsdf`).
+        gravity: ``[3]`` gravity direction in the canonical frame.
+    """
+    cfg = config or PartConfig()
+    views = frame_views(dynamic, np.asarray(canonical_from_session, dtype=np.float64), mesh)
+    models = segment_part_at_frame(views, None, gravity=gravity, mesh=mesh, config=cfg)
+    return propagate_masks_backwards(models, views, dynamic, mesh, cfg)

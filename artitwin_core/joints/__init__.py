@@ -1,0 +1,30 @@
+"""Joints: types, estimation from 3D trajectories, metrics against ground truth."""
+
+from artitwin_core.joints._estimate import HypothesisScore, JointFit, JointFitConfig, estimate_joint
+from artitwin_core.joints._metrics import (
+    JointErrors,
+    axis_angle_error_deg,
+    joint_errors,
+    line_distance,
+    point_line_distance,
+)
+from artitwin_core.joints._model import joint_transforms
+from artitwin_core.joints._simulate import random_part_joint, simulate_trajectories
+from artitwin_core.joints._types import JOINT_TYPES, Joint
+
+__all__ = [
+    "JOINT_TYPES",
+    "HypothesisScore",
+    "Joint",
+    "JointErrors",
+    "JointFit",
+    "JointFitConfig",
+    "axis_angle_error_deg",
+    "estimate_joint",
+    "joint_errors",
+    "joint_transforms",
+    "line_distance",
+    "point_line_distance",
+    "random_part_joint",
+    "simulate_trajectories",
+]

@@ -1,0 +1,42 @@
+"""The in-memory form of estimated (or ground-truth) joints."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+JOINT_TYPES = ("revolute", "prismatic", "screw", "fixed")
+
+
+@dataclass(frozen=True)
+class Joint:
+    """One articulation joint in the canonical frame (= the static recording's world frame).
+
+    Revolute: the part rotates by ``q`` radians about ``axis`` through ``pivot`` (right-hand rule).
+    Prismatic: the part translates by ``q`` metres along ``axis``; ``pivot`` is a point on the part's
+    axis line at ``q = 0`` (used for drawing and export only).
+    Screw: rotation ``q`` about the axis line plus translation ``pitch * q`` along it.
+    Fixed: nothing moved; ``q`` is all zeros.
+
+    Attributes:
+        joint_type: one of ``JOINT_TYPES``.
+        axis: ``[3]`` float64 unit direction in the canonical frame.
+        pivot: ``[3]`` float64 metres, a point on the axis line in the canonical frame.
+        q: ``[T]`` float64 state per dynamic frame, radians (revolute, screw) or metres
+            (prismatic); ``q = 0`` is the canonical (closed, static-recording) state.
+        q_range: ``[2]`` float64 ``(q_min, q_max)`` observed range of motion.
+        residual: ``[T]`` float64 metres, per-frame RMS distance of the part's tracked points to
+            their joint-predicted positions (NaN where the frame had no valid tracks).
+        confidence: ``[T]`` float64 in [0, 1], per-frame confidence of ``q``.
+        pitch: metres per radian of axial translation (screw joints only, else 0).
+    """
+
+    joint_type: str
+    axis: np.ndarray
+    pivot: np.ndarray
+    q: np.ndarray
+    q_range: np.ndarray
+    residual: np.ndarray
+    confidence: np.ndarray
+    pitch: float = 0.0

@@ -1,0 +1,20 @@
+"""Registration of a dynamic recording's AR-session frame onto the static (canonical) frame.
+
+``register_recordings(static, dynamic, gravity=...)`` -> :class:`RegistrationResult`: a yaw sweep
+about the shared gravity with correlation for the translation, robust coarse-to-fine
+point-to-plane ICP, then coloured ICP. ``fused_cloud`` and ``frame_points`` turn a capture's depth
+into points, for the other stages that need them.
+"""
+
+from artitwin_core.registration._clouds import backproject, frame_points, fused_cloud
+from artitwin_core.registration._register import register_recordings
+from artitwin_core.registration._types import RegistrationConfig, RegistrationResult
+
+__all__ = [
+    "RegistrationConfig",
+    "RegistrationResult",
+    "backproject",
+    "frame_points",
+    "fused_cloud",
+    "register_recordings",
+]

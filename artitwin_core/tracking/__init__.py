@@ -1,0 +1,21 @@
+"""Point tracking: 2D tracks of a moving part's points through a recording, lifted to 3D world points.
+
+``track_part_points(capture, part_masks, canonical_from_session)`` is the entry point; it gives
+``Trajectories`` for ``artitwin_core.joints.estimate_joint``. ``lift_pixels`` turns RGB pixels of
+one frame into world points with the frame's depth (lower resolution than RGB is fine).
+"""
+
+from artitwin_core.tracking._config import TrackingConfig
+from artitwin_core.tracking._lift import lift_pixels
+from artitwin_core.tracking._metrics import track_errors_m, true_track_positions
+from artitwin_core.tracking._track import track_part_points
+from artitwin_core.tracking._types import Trajectories
+
+__all__ = [
+    "TrackingConfig",
+    "Trajectories",
+    "lift_pixels",
+    "track_errors_m",
+    "track_part_points",
+    "true_track_positions",
+]

@@ -1,0 +1,123 @@
+"""Hyperparameters of the part point tracker."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+
+@dataclass(frozen=True)
+class TrackingConfig:
+    """Hyperparameters of ``track_part_points`` (pixels at RGB resolution, metres, seconds).
+
+    Attributes:
+        query_area_fraction: the query frame is the first whose (eroded, hand-free) part area
+            times mask score reaches this fraction of the best frame's. Earlier frames are
+            preferred because recordings start with the part closed, the frame ``estimate_joint``
+            takes as reference, and a closed drawer's outline (flush with the cabinet) pins the
+            dense warp best. Measured on the "drawer" / "low-noise" scenes: 3D p90 4.2 / 2.5 mm
+            at 0.6 against 9.6 / 12.5 mm at 1.0 (largest area, the open drawer).
+        max_points: query points sampled in the query frame (fewer on small or untextured parts).
+        min_distance_px: least spacing between query points; ``None`` = ``max(2, W / 128)``.
+        erode_px: the part mask is eroded by this before sampling (keeps query points off its
+            boundary, where LK windows straddle the background); ``None`` = ``max(1, W / 128)``.
+        hand_margin_px: pixels this close to the hand are neither sampled nor tracked;
+            ``None`` = ``max(2, W / 64)``.
+        mask_dilate_px: a track must stay inside the part mask dilated by this (masks from a
+            segmenter are a few pixels off); ``None`` = ``max(1, W / 128)``.
+        align_margin_px: planar mode's dense aligner uses the part mask dilated by this (a
+            segmenter's mask may miss the part's outline, whose gradients pin the warp across a
+            directional texture); ``None`` = ``max(2, W / 32)``.
+        corner_quality: Shi-Tomasi quality level (fraction of the best corner's min eigenvalue).
+        window_px: LK window side (odd); ``None`` = ``W / 16`` clipped to [9, 31].
+        pyramid_levels: LK pyramid levels above the full-resolution image.
+        lk_iterations: LK iterations per level.
+        lk_min_eigen: LK's ``minEigThreshold`` (OpenCV's normalised units): flat patches fail.
+        fb_threshold_px: a frame-to-frame step is kept when the backward flow returns within this
+            many pixels of where it started (forward-backward consistency).
+        homography_threshold_px: RANSAC threshold of the query-to-frame homography that predicts
+            the part's warp (drift anchoring and re-acquisition work on its inliers only).
+        min_homography_points: fewest tracks for fitting that homography.
+        anchor_max_shift_px: the query-frame template, warped by the homography, must agree with
+            the chained position within this many pixels, else the track has drifted and stops.
+        ncc_min: normalised cross-correlation between the warped query patch and the current
+            patch below which the track stops (occluded by a hand, or slid off its point).
+        reacquire: re-find tracks lost to occlusion once their point is visible again, by
+            homography prediction plus template alignment (tracks on the homography's plane only).
+        reacquire_ncc_min: the stricter NCC a re-acquired point must reach.
+        plane_threshold_m: query points within this distance of the part's dominant plane count
+            as on it (depth noise is ~3 mm at 1 m on an iPhone LiDAR).
+        min_plane_fraction: if at least this fraction of the query points is on one plane, the
+            part is tracked in planar mode: a dense homography over the part's pixels places every
+            track, and points off the plane are not tracked; otherwise tracks are chained LK
+            points re-aligned to the query frame one by one.
+        normalize_exposure: scale each frame's grey levels to the query frame's median (LK is
+            not invariant to exposure changes).
+        depth_edge_rel: the 2x2 depth neighbours of a sample may differ by at most this fraction
+            of its depth (larger spreads are depth edges or flying pixels).
+        min_confidence: depth confidence (0/1/2) a sample needs; 1 rejects ARKit's "low".
+        max_speed_m_per_s: a point faster than this between valid frames is a depth outlier
+            (generous: a door edge swung by hand moves at ~1-2 m/s).
+        jump_margin_m: added to ``max_speed * dt`` (depth noise on both ends).
+        min_valid_frames: tracks with fewer valid 3D frames are dropped.
+        seed: random seed of the plane RANSAC.
+    """
+
+    max_points: int = 1000
+    query_area_fraction: float = 0.6
+    min_distance_px: float | None = None
+    erode_px: int | None = None
+    hand_margin_px: int | None = None
+    mask_dilate_px: int | None = None
+    align_margin_px: int | None = None
+    corner_quality: float = 0.005
+    window_px: int | None = None
+    pyramid_levels: int = 3
+    lk_iterations: int = 30
+    lk_min_eigen: float = 1e-4
+    fb_threshold_px: float = 1.0
+    homography_threshold_px: float = 2.0
+    min_homography_points: int = 12
+    anchor_max_shift_px: float = 2.0
+    ncc_min: float = 0.6
+    reacquire: bool = True
+    reacquire_ncc_min: float = 0.85
+    plane_threshold_m: float = 0.012
+    min_plane_fraction: float = 0.5
+    normalize_exposure: bool = True
+    depth_edge_rel: float = 0.05
+    min_confidence: int = 1
+    max_speed_m_per_s: float = 3.0
+    jump_margin_m: float = 0.05
+    min_valid_frames: int = 3
+    seed: int = 0
+
+    def __post_init__(self) -> None:
+        if not 0.0 < self.query_area_fraction <= 1.0:
+            raise ValueError(f"TrackingConfig.query_area_fraction must be in (0, 1], got {self.query_area_fraction}")
+        if self.max_points < 3:
+            raise ValueError(f"TrackingConfig.max_points must be >= 3, got {self.max_points}")
+        for name in ("fb_threshold_px", "homography_threshold_px", "anchor_max_shift_px",
+                     "depth_edge_rel", "max_speed_m_per_s"):
+            if not getattr(self, name) > 0:
+                raise ValueError(f"TrackingConfig.{name} must be > 0, got {getattr(self, name)}")
+        if self.window_px is not None and (self.window_px < 5 or self.window_px % 2 == 0):
+            raise ValueError(f"TrackingConfig.window_px must be odd and >= 5, got {self.window_px}")
+        if not -1.0 <= self.ncc_min <= 1.0 or not -1.0 <= self.reacquire_ncc_min <= 1.0:
+            raise ValueError("TrackingConfig.ncc_min and reacquire_ncc_min must be in [-1, 1]")
+        if self.pyramid_levels < 0 or self.lk_iterations < 1 or self.min_valid_frames < 1:
+            raise ValueError("TrackingConfig.pyramid_levels >= 0, lk_iterations >= 1, min_valid_frames >= 1")
+
+    def scaled(self, width: int) -> dict[str, float]:
+        """The pixel sizes left as ``None``, resolved for images ``width`` pixels wide."""
+        win = self.window_px
+        if win is None:
+            win = int(min(31, max(9, width // 16)))
+            win += 1 - win % 2
+        return {
+            "min_distance_px": self.min_distance_px if self.min_distance_px is not None else max(2.0, width / 128),
+            "erode_px": self.erode_px if self.erode_px is not None else max(1, round(width / 128)),
+            "hand_margin_px": self.hand_margin_px if self.hand_margin_px is not None else max(2, round(width / 64)),
+            "mask_dilate_px": self.mask_dilate_px if self.mask_dilate_px is not None else max(1, round(width / 128)),
+            "align_margin_px": self.align_margin_px if self.align_margin_px is not None else max(2, round(width / 64)),
+            "window_px": win,
+        }
