@@ -1,0 +1,1 @@
+"""The ArtiTwin application: the ``artitwin`` command line (top layer, above flows)."""

@@ -1,0 +1,3 @@
+from artitwin.cli import main
+
+main()

@@ -1,0 +1,262 @@
+"""The ``artitwin`` command line: run scenes, make examples, inspect the store, open the UI."""
+
+from __future__ import annotations
+
+import json
+import os
+import subprocess
+import sys
+import time
+from pathlib import Path
+from typing import Annotated, Any
+
+import typer
+from pydantic import ValidationError
+from rich.console import Console
+from rich.table import Table
+
+from artitwin_core import ArtiTwinError
+from schemas import PipelineConfig
+
+app = typer.Typer(add_completion=False, no_args_is_help=True, help=__doc__)
+store_app = typer.Typer(no_args_is_help=True, help="Inspect and maintain the artifact store.")
+app.add_typer(store_app, name="store")
+console = Console(stderr=True)
+
+StoreOpt = Annotated[
+    str | None,
+    typer.Option("--store", help="Store root: a directory or an fsspec URL (default: $ARTITWIN_STORE or ./.artitwin/store)."),
+]
+
+
+def _fail(message: str, code: int = 2) -> None:
+    console.print(f"[bold red]error:[/] {message}")
+    raise typer.Exit(code)
+
+
+def _load_config(path: Path | None, preset: str = "default"):
+    if path is None:
+        try:
+            return PipelineConfig.preset(preset)
+        except ValueError as e:
+            _fail(str(e))
+    if not path.is_file():
+        _fail(f"config file {path} does not exist")
+    text = path.read_text()
+    try:
+        if path.suffix in (".yaml", ".yml"):
+            import yaml
+
+            data = yaml.safe_load(text) or {}
+        else:
+            data = json.loads(text)
+        return PipelineConfig.model_validate(data)
+    except (ValueError, ValidationError) as e:
+        _fail(f"config file {path} is invalid:\n{e}")
+
+
+def _store_url(store: str | None) -> str:
+    from flows._env import default_store_url
+
+    return store or default_store_url()
+
+
+def _print_summary(summary: dict[str, Any], out: Path | None) -> None:
+    table = Table(title=f"scene {summary['scene']}")
+    for col in ("stage", "status", "seconds", "key"):
+        table.add_column(col)
+    for name, s in summary["stages"].items():
+        table.add_row(name, s["status"], f"{s['seconds']:.2f}", s["key"][:16])
+    Console().print(table)
+    for name, s in summary["stages"].items():
+        for note in s.get("notes", []):
+            console.print(f"[yellow]{name}:[/] {note}")
+    if out is not None:
+        console.print(f"summary: {out / 'summary.json'}")
+
+
+def _run_scene(scene: Path, out: Path, config, store: str | None, use_prefect: bool) -> dict[str, Any]:
+    from flows._pipeline import write_summary
+
+    if not scene.exists():
+        _fail(f"scene folder {scene} does not exist")
+    with console.status(f"running stages on {scene} ..."):
+        if use_prefect:
+            from flows.scene import reconstruct_scene
+
+            summary = reconstruct_scene(str(scene), config=config, store=_store_url(store), out=str(out))
+        else:
+            from flows.scene import run_scene_inline
+
+            summary = run_scene_inline(scene, config, _store_url(store))
+            write_summary(summary, out)
+    return summary
+
+
+@app.command()
+def run(
+    scene: Annotated[Path, typer.Argument(help="Scene folder holding the static and dynamic recordings.")],
+    out: Annotated[Path, typer.Option("--out", help="Where summary.json and exports go.")] = Path("out"),
+    config: Annotated[Path | None, typer.Option("--config", help="Pipeline config (JSON or YAML).")] = None,
+    preset: Annotated[str, typer.Option("--preset", help="Config preset when no --config: default or quick.")] = "default",
+    store: StoreOpt = None,
+    prefect: Annotated[bool, typer.Option("--prefect/--no-prefect", help="Run as a Prefect flow (default).")] = True,
+) -> None:
+    """Run the whole pipeline on one scene."""
+    cfg = _load_config(config, preset)
+    try:
+        summary = _run_scene(scene, out, cfg, store, prefect)
+    except ArtiTwinError as e:
+        _fail(str(e))
+    _print_summary(summary, out)
+
+
+@app.command()
+def demo(
+    out: Annotated[Path, typer.Option("--out", help="Where the example scene and the results go.")] = Path("out/demo"),
+    store: StoreOpt = None,
+    prefect: Annotated[bool, typer.Option("--prefect/--no-prefect")] = True,
+) -> None:
+    """Make the small built-in synthetic example scene and run the pipeline on it."""
+    from artitwin_core.synth import BENCHMARK_SCENES, generate_scene, write_scene
+
+    scene_dir = out / "scene"
+    if not (scene_dir / "scene.json").exists():
+        with console.status("rendering the built-in example scene ..."):
+            write_scene(generate_scene(BENCHMARK_SCENES["tiny"]), scene_dir)
+    summary = _run_scene(scene_dir, out, PipelineConfig.preset("quick"), store, prefect)
+    _print_summary(summary, out)
+
+
+@app.command()
+def synth(
+    name: Annotated[str, typer.Argument(help="Benchmark scene name (see --list).")] = "tiny",
+    out: Annotated[Path, typer.Option("--out", help="Scene folder to write.")] = Path("scenes/tiny"),
+    fmt: Annotated[str, typer.Option("--format", help="r3d, nerfstudio, record3d-exr or stray.")] = "r3d",
+    seed: Annotated[int | None, typer.Option("--seed", help="Override the scene's seed.")] = None,
+    list_: Annotated[bool, typer.Option("--list", help="List the named scenes and exit.")] = False,
+) -> None:
+    """Render a synthetic articulated scene with exact ground truth."""
+    import dataclasses
+
+    from artitwin_core.synth import BENCHMARK_SCENES, generate_scene, write_scene
+
+    if list_:
+        for key, spec in BENCHMARK_SCENES.items():
+            typer.echo(f"{key}: {spec.furniture}, {spec.texture}")
+        return
+    if name not in BENCHMARK_SCENES:
+        _fail(f"unknown scene {name!r}; known: {', '.join(BENCHMARK_SCENES)}")
+    spec = BENCHMARK_SCENES[name]
+    if seed is not None:
+        spec = dataclasses.replace(spec, seed=seed)
+    with console.status(f"rendering {name} ..."):
+        write_scene(generate_scene(spec), out, fmt=fmt)
+    typer.echo(str(out))
+
+
+@app.command()
+def ui(
+    port: Annotated[int, typer.Option(help="Port on 127.0.0.1.")] = 4200,
+) -> None:
+    """Start the Prefect UI on 127.0.0.1 over this project's local run history."""
+    from flows._env import apply_prefect_defaults
+
+    apply_prefect_defaults()
+    console.print(f"Prefect UI at http://127.0.0.1:{port} (PREFECT_HOME={os.environ['PREFECT_HOME']}); Ctrl-C stops it.")
+    cmd = [sys.executable, "-m", "prefect", "server", "start", "--host", "127.0.0.1", "--port", str(port)]
+    raise typer.Exit(subprocess.call(cmd))
+
+
+@store_app.command("ls")
+def store_ls(store: StoreOpt = None) -> None:
+    """List stored artifacts, oldest first."""
+    from infra.store import ArtifactStore
+
+    st = ArtifactStore(_store_url(store))
+    table = Table(title=st.url)
+    for col in ("key", "kind", "stage", "label", "size", "created"):
+        table.add_column(col)
+    for info in st.ls():
+        table.add_row(
+            info.key[:16],
+            info.kind,
+            str(info.record.get("stage", "")),
+            str(info.record.get("label", "")),
+            f"{info.size_bytes / 1e6:.2f} MB",
+            time.strftime("%Y-%m-%d %H:%M:%S", time.localtime(info.created)),
+        )
+    Console().print(table)
+
+
+@store_app.command("show")
+def store_show(key: Annotated[str, typer.Argument(help="Full key or a unique prefix.")], store: StoreOpt = None) -> None:
+    """Show what an artifact was computed from and what it holds."""
+    from infra.store import ArtifactStore, StoreError
+
+    st = ArtifactStore(_store_url(store))
+    matches = [k for k in st.keys() if k.startswith(key)]
+    if len(matches) != 1:
+        _fail(f"{len(matches)} artifacts match {key!r}; give more of the key")
+    try:
+        info = st.info(matches[0])
+        art = st.get(matches[0])
+    except StoreError as e:
+        _fail(str(e))
+    fields = {}
+    for name in type(art).model_fields:
+        v = getattr(art, name)
+        fields[name] = f"array {v.dtype}{list(v.shape)}" if hasattr(v, "shape") else v
+    typer.echo(
+        json.dumps(
+            {"key": info.key, "kind": info.kind, "object": info.object_path, "bytes": info.size_bytes, "record": info.record, "fields": fields},
+            indent=2,
+            default=str,
+        )
+    )
+
+
+@store_app.command("verify")
+def store_verify(
+    store: StoreOpt = None,
+    repair: Annotated[bool, typer.Option("--repair", help="Set corrupt artifacts aside so reruns recompute them.")] = False,
+) -> None:
+    """Check every artifact's files against its manifest (SHA-256)."""
+    from infra.store import ArtifactStore
+
+    st = ArtifactStore(_store_url(store))
+    problems = st.verify(repair=repair)
+    for p in problems:
+        console.print(f"[red]{p.key[:16]}[/] {p.what}")
+    if problems:
+        console.print(f"{len({p.key for p in problems})} corrupt artifact(s){' set aside' if repair else '; rerun with --repair'}")
+        raise typer.Exit(1)
+    typer.echo("all artifacts intact")
+
+
+@store_app.command("gc")
+def store_gc(
+    store: StoreOpt = None,
+    grace: Annotated[float, typer.Option(help="Keep unreferenced files younger than this (seconds).")] = 3600.0,
+    dry_run: Annotated[bool, typer.Option("--dry-run")] = False,
+) -> None:
+    """Remove leftovers of killed or racing writers and finished leases."""
+    from infra.store import ArtifactStore
+
+    removed = ArtifactStore(_store_url(store)).gc(grace_s=grace, dry_run=dry_run)
+    for rel in removed:
+        typer.echo(("would remove " if dry_run else "removed ") + rel)
+    typer.echo(f"{len(removed)} item(s)")
+
+
+def main() -> None:
+    try:
+        app()
+    except ArtiTwinError as e:  # raised outside a command's own handling
+        console.print(f"[bold red]error:[/] {e}")
+        sys.exit(2)
+
+
+from artitwin._cli_queue import register as _register_queue_commands  # noqa: E402  (needs app above)
+
+_register_queue_commands(app)

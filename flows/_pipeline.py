@@ -1,0 +1,127 @@
+"""The scene pipeline as a graph of stages, independent of how stages are executed.
+
+``scene_pipeline`` names which stage consumes which output; the executor decides whether they
+run inline or as Prefect tasks. New stages are added here, in order.
+"""
+
+from __future__ import annotations
+
+import json
+import math
+import os
+import subprocess
+import time
+from dataclasses import asdict
+from importlib import metadata
+from pathlib import Path
+from typing import Any
+
+from artitwin_core.capture import find_scene_recordings, recording_files
+from flows._runner import Executor, StageRun, raw_input
+from infra.store import ArtifactStore
+from schemas import JointSet, PipelineConfig, Registration, StageReport
+
+SUMMARY_VERSION = 1
+
+
+def scene_pipeline(scene: str | Path, config: PipelineConfig, ex: Executor) -> dict[str, Any]:
+    """Submit every stage of one scene; returns handles by ``stage/label``."""
+    recordings = find_scene_recordings(Path(scene))
+    h: dict[str, Any] = {}
+    caps = {}
+    for label, path in (("static", recordings.static), ("dynamic", recordings.dynamic)):
+        raw = raw_input(path, recording_files(path))
+        caps[label] = h[f"ingest/{label}"] = ex.submit("ingest", config.ingest, {"recording": raw}, label)
+        h[f"capture_check/{label}"] = ex.submit("capture_check", config.capture_check, {"capture": caps[label]}, label)
+    static, dynamic = caps["static"], caps["dynamic"]
+    # I. canonical reconstruction of the static recording
+    poses = h["refine_poses"] = ex.submit("refine_poses", config.refine_poses, {"capture": static}, "static")
+    gaussians = h["reconstruct"] = ex.submit("reconstruct", config.reconstruct, {"capture": static, "poses": poses}, "static")
+    h["reconstruct_report"] = ex.submit(
+        "reconstruct_report", config.reconstruct, {"capture": static, "poses": poses, "gaussians": gaussians}, "static"
+    )
+    # II. registration and part masks of the dynamic recording
+    reg = h["register"] = ex.submit("register", config.registration, {"static": static, "dynamic": dynamic}, "dynamic")
+    masks = h["part_masks"] = ex.submit(
+        "part_masks",
+        config.part_masks,
+        {"static": static, "static_poses": poses, "dynamic": dynamic, "registration": reg},
+        "dynamic",
+    )
+    # III. tracks and joints
+    tracks = h["track"] = ex.submit("track", config.track, {"dynamic": dynamic, "masks": masks, "registration": reg}, "dynamic")
+    h["fit_joints"] = ex.submit("fit_joints", config.fit_joints, {"trajectories": tracks}, "dynamic")
+    return h
+
+
+def code_version() -> str:
+    """Package version plus the git commit when run from a checkout (informational only)."""
+    version = metadata.version("artitwin")
+    try:
+        sha = subprocess.run(
+            ["git", "rev-parse", "--short", "HEAD"],
+            cwd=Path(__file__).resolve().parent,
+            capture_output=True,
+            text=True,
+            timeout=5,
+            check=True,
+        ).stdout.strip()
+        return f"{version}+g{sha}" if sha else version
+    except (OSError, subprocess.SubprocessError):
+        return version
+
+
+def build_summary(scene: str | Path, store: ArtifactStore, runs: dict[str, StageRun], started: float) -> dict[str, Any]:
+    """The machine-readable summary of a scene run (documented in docs/summary.md)."""
+    stages = {}
+    for name, run in runs.items():
+        entry: dict[str, Any] = asdict(run)
+        if run.kind == StageReport.kind:
+            report = store.get(run.key, StageReport)
+            entry["metrics"] = {k: _finite(v) for k, v in report.metrics.items()}
+            entry["notes"] = list(report.notes)
+        elif run.kind == Registration.kind:
+            reg = store.get(run.key, Registration)
+            entry["metrics"] = {"residual_m": reg.residual_m, "inlier_frac": reg.inlier_fraction}
+            entry["canonical_from_session"] = reg.canonical_from_session.tolist()
+        stages[name] = entry
+    joints = []
+    for run in runs.values():
+        if run.kind == JointSet.kind:
+            for j in store.get(run.key, JointSet).joints:
+                joints.append(
+                    {
+                        "name": j.name,
+                        "type": j.joint_type,
+                        "axis": j.axis.tolist(),
+                        "pivot": j.pivot.tolist(),
+                        "range": j.q_range.tolist(),
+                        "q": [_finite(float(v)) for v in j.q],
+                        "pitch": j.pitch,
+                    }
+                )
+    return {
+        "summary_version": SUMMARY_VERSION,
+        "scene": str(Path(scene).resolve()),
+        "store": store.url,
+        "code_version": code_version(),
+        "started_at": started,
+        "wall_seconds": time.time() - started,
+        "stages": stages,
+        "joints": joints,
+        "exports": {},
+    }
+
+
+def write_summary(summary: dict[str, Any], out_dir: str | Path) -> Path:
+    """Write ``out_dir/summary.json`` atomically (a reader never sees half a file)."""
+    out = Path(out_dir)
+    out.mkdir(parents=True, exist_ok=True)
+    tmp = out / f".summary.json.{os.getpid()}.tmp"
+    tmp.write_text(json.dumps(summary, indent=2, allow_nan=False))
+    os.replace(tmp, out / "summary.json")
+    return out / "summary.json"
+
+
+def _finite(v: float) -> float | None:
+    return v if math.isfinite(v) else None

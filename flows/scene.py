@@ -1,0 +1,123 @@
+"""The per-scene Prefect flow: one Prefect task per stage, cached through the artifact store."""
+
+from __future__ import annotations
+
+import time
+from pathlib import Path
+from typing import Any
+
+from prefect import flow, task
+from prefect.artifacts import create_markdown_artifact
+from prefect.futures import PrefectFuture
+from prefect.tasks import exponential_backoff
+
+from artitwin_core import InputError, TransientError
+from flows._env import default_store_url
+from flows._pipeline import build_summary, scene_pipeline, write_summary
+from flows._runner import StageRun, run_stage
+from infra.store import ArtifactStore, StoreError
+from schemas import PipelineConfig, StageConfig, StageReport
+from tasks import STAGES
+
+# Errors worth retrying: storage hiccups and lock contention. Bad input and bugs are not.
+TRANSIENT = (TransientError, ConnectionError, TimeoutError)
+
+
+def _retry_transient_only(task: Any, task_run: Any, state: Any) -> bool:
+    exc = state.data if isinstance(state.data, BaseException) else None
+    if exc is None:
+        try:
+            state.result(raise_on_failure=True)
+        except BaseException as e:  # noqa: BLE001 (we only classify it)
+            exc = e
+    if isinstance(exc, InputError | StoreError) and not isinstance(exc, TransientError):
+        return False
+    return isinstance(exc, TRANSIENT)
+
+
+@task(
+    name="stage",
+    retries=3,
+    retry_delay_seconds=exponential_backoff(backoff_factor=2),
+    retry_jitter_factor=0.5,
+    retry_condition_fn=_retry_transient_only,
+    persist_result=False,
+)
+def stage_task(store_url: str, stage_name: str, config: StageConfig, inputs: dict[str, Any], label: str) -> StageRun:
+    return _run_and_publish(store_url, stage_name, config, inputs, label)
+
+
+def _run_and_publish(store_url: str, stage_name: str, config: StageConfig, inputs: dict[str, Any], label: str) -> StageRun:
+    # A module-level function, so a task runner that pickles the task body (Dask) ships a
+    # reference to it; the body itself is pickled by value with its globals, which would copy
+    # the stage registry and lose the stage functions' annotation namespace.
+    store = ArtifactStore(store_url)
+    run = run_stage(store, STAGES[stage_name], config, inputs, label=label)
+    _publish_ui_artifact(store, run)
+    return run
+
+
+def _publish_ui_artifact(store: ArtifactStore, run: StageRun) -> None:
+    lines = [f"### {run.stage} ({run.label})", "", f"- key: `{run.key}`", f"- status: {run.status} in {run.seconds:.2f} s"]
+    if run.kind == StageReport.kind:
+        report = store.get(run.key, StageReport)
+        lines += ["", "| metric | value |", "| --- | --- |"]
+        lines += [f"| {k} | {v:.6g} |" for k, v in sorted(report.metrics.items())]
+        lines += [f"- note: {n}" for n in report.notes]
+    create_markdown_artifact(
+        "\n".join(lines),
+        key=f"{run.stage}-{run.label}".replace("_", "-").lower(),
+        description=f"{run.stage} {run.label}",
+    )
+
+
+class PrefectExecutor:
+    """Submits each stage as a Prefect task; dependencies pass as futures of references."""
+
+    def __init__(self, store_url: str) -> None:
+        self.store_url = store_url
+
+    def submit(self, stage_name: str, config: StageConfig, inputs: dict[str, Any], label: str) -> PrefectFuture:
+        named = stage_task.with_options(name=stage_name, task_run_name=f"{stage_name}[{label}]")
+        return named.submit(self.store_url, stage_name, config, inputs, label)
+
+    def result(self, handle: PrefectFuture) -> StageRun:
+        return handle.result()
+
+
+@flow(name="reconstruct-scene", log_prints=True)
+def reconstruct_scene(
+    scene: str,
+    config: PipelineConfig | None = None,
+    store: str | None = None,
+    out: str | None = None,
+) -> dict[str, Any]:
+    """Run every stage for the scene folder ``scene``; return (and write to ``out``) the summary."""
+    started = time.time()
+    config = config or PipelineConfig()
+    store_url = store or default_store_url()
+    ex = PrefectExecutor(store_url)
+    handles = scene_pipeline(scene, config, ex)
+    runs = {name: ex.result(h) for name, h in handles.items()}
+    summary = build_summary(scene, ArtifactStore(store_url), runs, started)
+    if out:
+        write_summary(summary, out)
+    return summary
+
+
+def run_scene_inline(scene: str | Path, config: PipelineConfig | None = None, store: str | None = None) -> dict[str, Any]:
+    """The same pipeline without Prefect (scripts, benchmarks of raw stage cost)."""
+    from flows._runner import InlineExecutor
+
+    started = time.time()
+    st = ArtifactStore(store or default_store_url())
+    ex = InlineExecutor(st)
+    runs = {name: ex.result(h) for name, h in scene_pipeline(scene, config or PipelineConfig(), ex).items()}
+    return build_summary(scene, st, runs, started)
+
+
+def stage_names() -> list[str]:
+    return list(STAGES)
+
+
+__all__ = ["PrefectExecutor", "reconstruct_scene", "run_scene_inline", "stage_task"]

@@ -1,0 +1,30 @@
+"""One pure function per pipeline stage: typed artifacts and a config in, a typed artifact out.
+
+No Prefect here and no hidden I/O: every stage is callable and testable on its own. ``STAGES``
+holds the registered stage descriptors by name.
+"""
+
+from tasks._convert import to_artifact, to_core
+from tasks._stage import STAGES, Stage, stage
+from tasks.ingest import check_capture, ingest_recording
+from tasks.joints import fit_joints
+from tasks.reconstruct import reconstruct_canonical, reconstruct_report, refine_capture_poses
+from tasks.register import label_parts, register_dynamic
+from tasks.track import track_parts
+
+__all__ = [
+    "STAGES",
+    "Stage",
+    "check_capture",
+    "fit_joints",
+    "ingest_recording",
+    "label_parts",
+    "reconstruct_canonical",
+    "reconstruct_report",
+    "refine_capture_poses",
+    "register_dynamic",
+    "track_parts",
+    "stage",
+    "to_artifact",
+    "to_core",
+]

@@ -1,0 +1,41 @@
+"""Stage: fit one joint per moving part to the part's 3D point tracks."""
+
+from __future__ import annotations
+
+import numpy as np
+
+from artitwin_core.joints import JointFitConfig, estimate_joint
+from artitwin_core.tracking import Trajectories
+from schemas import JointConfig, JointParams, JointSet, TrajectoriesArtifact
+from tasks._convert import to_artifact, to_core
+from tasks._stage import stage
+
+
+def _fit_config(config: JointConfig) -> JointFitConfig:
+    return JointFitConfig(
+        ransac_iterations=config.ransac_iterations,
+        ransac_threshold_m=config.ransac_threshold_m,
+        min_motion_m=config.min_motion_m,
+        screw_bic_margin=config.screw_bic_margin,
+        seed=config.seed,
+    )
+
+
+def _subset(traj: Trajectories, keep: np.ndarray) -> Trajectories:
+    return Trajectories(traj.points_in_world[:, keep], traj.pixels[:, keep], traj.valid[:, keep], traj.query_frame)
+
+
+@stage(name="fit_joints", version=1, config=JointConfig, output=JointSet)
+def fit_joints(trajectories: TrajectoriesArtifact, config: JointConfig) -> JointSet:
+    """Fit a joint to each part's tracks; the model-selection scores go in ``selection``."""
+    traj = to_core(Trajectories, trajectories)
+    part_ids = traj.part_ids if traj.part_ids is not None else np.zeros(traj.valid.shape[1], np.int32)
+    joints, selection = [], {}
+    for part in np.unique(part_ids):
+        fit = estimate_joint(_subset(traj, part_ids == part), _fit_config(config), reference_frame=config.reference_frame)
+        name = f"joint_{int(part)}"
+        joints.append(to_artifact(JointParams, fit.joint, name=name))
+        selection[name] = {f"bic_{h.joint_type}": float(h.bic) for h in fit.hypotheses}
+        selection[name]["noise_sigma_m"] = float(fit.noise_sigma_m)
+        selection[name]["inlier_tracks_count"] = float(np.count_nonzero(fit.inlier_mask))
+    return JointSet(joints=joints, selection=selection)

@@ -1,0 +1,140 @@
+"""Stages of the canonical reconstruction: refine the static recording's poses, train the 3DGS
+model, and report on it.
+
+Three stages rather than one so that each result is cached on exactly what it depends on:
+changing a training hyperparameter reuses the (slow, COLMAP) pose refinement, and re-reporting
+never retrains. Training time is the ``seconds`` of the ``reconstruct`` stage run.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from artitwin_core.capture import Capture
+from artitwin_core.gaussians import GaussianParams
+from artitwin_core.reconstruction import (
+    InitConfig,
+    PoseRefineConfig,
+    TrainConfig,
+    TrainState,
+    evaluate_views,
+    init_gaussians,
+    make_views,
+    refine_poses,
+    scene_extent,
+    split_frames,
+    train,
+)
+from schemas import CameraPoses, CaptureArtifact, GaussianCheckpoint, StageReport
+from schemas._reconstruct import PoseRefineStageConfig, ReconstructConfig
+from tasks._convert import to_artifact, to_core
+from tasks._stage import stage
+
+
+def pose_config(config: PoseRefineStageConfig) -> PoseRefineConfig:
+    """The core dataclass for a stage config."""
+    return PoseRefineConfig(**config.model_dump())
+
+
+def init_config(config: ReconstructConfig) -> InitConfig:
+    return InitConfig(
+        voxel_size_m=config.voxel_size_m,
+        max_points=config.max_init_points,
+        min_confidence=config.min_confidence,
+        max_depth_m=config.max_depth_m,
+    )
+
+
+def train_config(config: ReconstructConfig) -> TrainConfig:
+    return TrainConfig.with_schedule(
+        config.steps,
+        lambda_dssim=config.lambda_dssim,
+        depth_weight=config.depth_weight,
+        sh_degree=config.sh_degree,
+        max_gaussians=config.max_gaussians,
+        grad_threshold=config.grad_threshold,
+        backend=config.backend,
+        seed=config.seed,
+    )
+
+
+@stage(name="refine_poses", version=1, config=PoseRefineStageConfig, output=CameraPoses)
+def refine_capture_poses(capture: CaptureArtifact, config: PoseRefineStageConfig) -> CameraPoses:
+    """Refined camera poses of the static recording, in its own (= the canonical) world frame.
+
+    When COLMAP cannot refine (low texture, too few matches) the capture poses come back
+    unchanged with ``correction_translation = None``; it never fails on such data.
+    """
+    result = refine_poses(to_core(Capture, capture), pose_config(config))
+    refined = result.status != "fallback"
+    return CameraPoses(
+        world_from_camera=result.world_from_camera.astype(np.float64),
+        frame_ids=np.asarray(capture.frame_ids, np.int64),
+        frame="canonical",
+        correction_translation=result.correction_translation_m.astype(np.float64) if refined else None,
+        correction_rotation=result.correction_rotation_deg.astype(np.float64) if refined else None,
+    )
+
+
+def _with_poses(capture: CaptureArtifact, poses: CameraPoses) -> Capture:
+    if poses.world_from_camera.shape[0] != capture.world_from_camera.shape[0]:
+        raise ValueError(
+            f"reconstruct: {poses.world_from_camera.shape[0]} poses for a capture of "
+            f"{capture.world_from_camera.shape[0]} frames; refine the poses of this capture."
+        )
+    return to_core(Capture, capture, world_from_camera=poses.world_from_camera)
+
+
+@stage(name="reconstruct", version=1, config=ReconstructConfig, output=GaussianCheckpoint)
+def reconstruct_canonical(capture: CaptureArtifact, poses: CameraPoses, config: ReconstructConfig) -> GaussianCheckpoint:
+    """Train the canonical 3DGS model of the static recording with the refined ``poses``.
+
+    Every ``holdout_every``-th frame is left out of seeding and training (see ``reconstruct_report``).
+    """
+    cap = _with_poses(capture, poses)
+    train_frames, _ = split_frames(cap.num_frames, config.holdout_every)
+    tcfg = train_config(config)
+    params0 = init_gaussians(cap, cap.world_from_camera, train_frames, init_config(config), tcfg.sh_degree)
+    views = make_views(cap, cap.world_from_camera, train_frames, config.min_confidence)
+    state = TrainState.from_params(params0, scene_extent(cap.world_from_camera[train_frames]))
+    train(state, views, tcfg)
+    return to_artifact(GaussianCheckpoint, state.to_params(), step=state.step)
+
+
+@stage(name="reconstruct_report", version=1, config=ReconstructConfig, output=StageReport)
+def reconstruct_report(
+    capture: CaptureArtifact, poses: CameraPoses, gaussians: GaussianCheckpoint, config: ReconstructConfig
+) -> StageReport:
+    """Held-out PSNR, SSIM and depth error of the model, and the pose corrections."""
+    cap = _with_poses(capture, poses)
+    params = to_core(GaussianParams, gaussians)
+    _, test_frames = split_frames(cap.num_frames, config.holdout_every)
+    ev = evaluate_views(params, cap, cap.world_from_camera, test_frames, backend=config.backend)
+    summary = ev.summary()
+    metrics = {
+        "gaussians_count": float(params.num_gaussians),
+        "steps_count": float(gaussians.step),
+        "heldout_frames_count": float(len(test_frames)),
+        "heldout_psnr_db": summary["psnr_db"],
+        "heldout_ssim": summary["ssim"],
+        "heldout_depth_mae_m": summary["depth_mae_m"],
+    }
+    notes = []
+    per_frame: dict[str, list[float]] = {}
+    if poses.correction_translation is None:
+        notes.append("Pose refinement did not run or fell back (low texture?): the capture poses were used.")
+    else:
+        metrics["pose_correction_mean_m"] = float(np.mean(poses.correction_translation))
+        metrics["pose_correction_max_m"] = float(np.max(poses.correction_translation))
+        metrics["pose_correction_mean_deg"] = float(np.mean(poses.correction_rotation))
+        metrics["pose_correction_max_deg"] = float(np.max(poses.correction_rotation))
+        per_frame["pose_correction_m"] = poses.correction_translation.tolist()
+        per_frame["pose_correction_deg"] = poses.correction_rotation.tolist()
+    if not test_frames:
+        notes.append("No frame was held out (holdout_every = 0 or too few frames): no evaluation.")
+    elif summary["psnr_db"] < 25.0:
+        notes.append(
+            f"Held-out PSNR is {summary['psnr_db']:.1f} dB: expect visible artefacts; more training steps, or a "
+            "slower, steadier recording, usually help."
+        )
+    return StageReport(stage="reconstruct_report", metrics=metrics, notes=notes, per_frame=per_frame)

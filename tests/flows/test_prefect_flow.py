@@ -1,0 +1,77 @@
+"""The Prefect layer: retries for transient errors only, the scene flow end to end, UI artifacts.
+
+All Prefect runs live in this one module so the embedded server starts once (~10 s).
+"""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import pytest
+from prefect import flow
+
+from flows import raw_input
+from flows.scene import reconstruct_scene, stage_task
+from schemas import PipelineConfig
+from tests.flows._toy import CALLS, FAILURES, ToyConfig
+
+
+@pytest.fixture
+def folder(tmp_path):
+    d = tmp_path / "rec"
+    d.mkdir()
+    (d / "a.bin").write_bytes(b"x" * 10)
+    CALLS.clear()
+    FAILURES.clear()
+    return d
+
+
+def _one_stage_flow(store: str, folder: Path):
+    fast_retry = stage_task.with_options(retry_delay_seconds=0, retry_jitter_factor=None)
+    raw = raw_input(folder, [p for p in folder.iterdir()])
+
+    @flow
+    def toy_flow():
+        return fast_retry(store, "toy_measure", ToyConfig(), {"recording": raw}, "x")
+
+    return toy_flow
+
+
+def test_transient_error_is_retried_to_success(tmp_path, folder):
+    FAILURES["toy_measure"] = 2
+    run = _one_stage_flow(str(tmp_path / "store"), folder)()
+    assert run.status == "computed"
+    assert CALLS["toy_measure"] == 3  # two transient failures, then success
+
+
+def test_bad_input_fails_fast_without_retries(tmp_path, folder):
+    missing = tmp_path / "nope"
+    missing.mkdir()
+    (missing / "a.bin").write_bytes(b"1")
+    toy = _one_stage_flow(str(tmp_path / "store"), missing)
+    (missing / "a.bin").unlink()
+    missing.rmdir()  # gone by the time the stage reads it
+    with pytest.raises(Exception, match="does not exist"):
+        toy()
+    assert CALLS["toy_measure"] == 1
+
+
+def test_scene_flow_writes_summary_and_reruns_from_cache(tmp_path, tiny_scene):
+    store = str(tmp_path / "store")
+    out = tmp_path / "out"
+    config = PipelineConfig.preset("quick")
+    first = reconstruct_scene(str(tiny_scene), config=config, store=store, out=str(out))
+    summary = json.loads((out / "summary.json").read_text())
+    assert summary["stages"].keys() == first["stages"].keys()
+    assert set(summary["stages"]) == {
+        "ingest/static", "ingest/dynamic", "capture_check/static", "capture_check/dynamic", "refine_poses",
+        "reconstruct", "reconstruct_report", "register", "part_masks", "track", "fit_joints",
+    }
+    assert all(s["status"] == "computed" for s in summary["stages"].values())
+    check = summary["stages"]["capture_check/static"]["metrics"]
+    assert check["frames_count"] > 0 and 0 < check["valid_depth_frac"] <= 1
+    assert [j["type"] for j in summary["joints"]] == ["revolute"]  # the tiny scene's one door
+    second = reconstruct_scene(str(tiny_scene), config=config, store=store, out=str(out))
+    assert all(s["status"] == "cached" for s in second["stages"].values())
+    assert {k: s["key"] for k, s in second["stages"].items()} == {k: s["key"] for k, s in first["stages"].items()}
