@@ -1,0 +1,39 @@
+"""Simulator export: fused meshes per link, convex collision pieces, inertials, URDF and MJCF.
+
+``fuse_part_mesh`` / ``fuse_base_mesh`` turn the recordings into closed-state meshes,
+``convex_decomposition`` makes collision pieces, ``mesh_inertial`` weighs a link, and
+``export_urdf`` / ``export_mjcf`` write a base link plus one jointed child link per part, and
+``export_part_plys`` splits the Gaussian twin into one standard 3DGS ``.ply`` per label, and
+``check_in_simulators`` loads the files in yourdfpy, PyBullet and MuJoCo and compares the part poses
+along the estimated ``q(t)`` with the twin's.
+"""
+
+from artitwin_core.export._collision import convex_decomposition
+from artitwin_core.export._fuse import clean_mesh, fuse_base_mesh, fuse_part_mesh
+from artitwin_core.export._inertia import WOOD_DENSITY_KG_M3, Inertial, mesh_inertial
+from artitwin_core.export._mjcf import export_mjcf
+from artitwin_core.export._model import Z_UP_FROM_Y_UP, ExportPart
+from artitwin_core.export._names import sanitize_name
+from artitwin_core.export._ply import export_part_plys
+from artitwin_core.export._simcheck import SIMULATORS, SimPart, SimResult, check_in_simulators
+from artitwin_core.export._urdf import export_urdf
+
+__all__ = [
+    "SIMULATORS",
+    "WOOD_DENSITY_KG_M3",
+    "Z_UP_FROM_Y_UP",
+    "ExportPart",
+    "Inertial",
+    "SimPart",
+    "SimResult",
+    "check_in_simulators",
+    "clean_mesh",
+    "convex_decomposition",
+    "export_mjcf",
+    "export_part_plys",
+    "export_urdf",
+    "fuse_base_mesh",
+    "fuse_part_mesh",
+    "mesh_inertial",
+    "sanitize_name",
+]
