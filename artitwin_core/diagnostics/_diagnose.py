@@ -1,0 +1,227 @@
+"""Diagnose: which known effects explain the residual, in what order, and what structure is left.
+
+Greedy forward selection (matching pursuit over effects): every applicable effect's signature is
+measured on the current residual; the one that explains the largest share of its target is
+enabled if that share is significant (at least ``min_explained`` of the target, and a gain of at
+least ``min_gain_over_floor`` noise floors), and the search repeats on what is left. The first
+round's signatures rank every effect; the enabled ones, in order, are the diagnosis. Whatever a
+target still holds beyond ``structure_ratio`` noise floors is reported as unexplained structure,
+with the variable it correlates with most (frame index, depth, image radius, joint state).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from artitwin_core._errors import InputError
+from artitwin_core.diagnostics._plugin import Effect, Signature, registered_effects
+from artitwin_core.diagnostics._residuals import TARGETS, ResidualData, noise_floor, target_energy
+
+# Tolerance of the depth-noise model: a 5 % spread mismatch is "at the floor".
+_DEPTH_NOISE_TOLERANCE = 0.05**2
+
+
+@dataclass(frozen=True)
+class DiagnoseConfig:
+    """Thresholds of ``diagnose``.
+
+    Attributes:
+        min_explained: an effect must explain at least this fraction of its target to be enabled.
+        min_gain_over_floor: ... and reduce its target's energy by at least this many noise floors.
+        structure_ratio: a target whose energy stays above this many noise floors holds structure.
+        max_rounds: at most this many effects are enabled.
+        min_correlation: a correlation ratio (eta^2) below this is not worth naming.
+    """
+
+    min_explained: float = 0.2
+    min_gain_over_floor: float = 0.5
+    structure_ratio: float = 2.0
+    max_rounds: int = 4
+    min_correlation: float = 0.05
+
+
+@dataclass(frozen=True)
+class Structure:
+    """Residual left in one target after the enabled effects.
+
+    Attributes:
+        target: one of ``TARGETS``.
+        energy: ``target_energy`` after the enabled effects.
+        floor: its noise floor.
+        correlations: ``{variable: eta^2}`` correlation ratio of the residual with each variable.
+    """
+
+    target: str
+    energy: float
+    floor: float
+    correlations: dict[str, float]
+
+    @property
+    def ratio(self) -> float:
+        return self.energy / self.floor if self.floor > 0 else float("inf")
+
+
+@dataclass(frozen=True)
+class Diagnosis:
+    """The answer of ``diagnose``.
+
+    Attributes:
+        ranking: every applicable effect's first-round signature, best explained fraction first.
+        enabled: the effects selected in order, each signature measured when it was selected.
+        energy_before, energy_after: ``{target: energy}`` before any and after all enabled effects.
+        floors: ``{target: noise floor}``.
+        significant: names of the ranked effects that passed the significance test in round one.
+        remaining: targets that still hold structure above the floor.
+        conclusion: the plain-language verdict, one line per finding.
+        residual_after: the data with the enabled effects applied.
+    """
+
+    ranking: list[Signature]
+    enabled: list[Signature]
+    energy_before: dict[str, float]
+    energy_after: dict[str, float]
+    floors: dict[str, float]
+    significant: tuple[str, ...] = ()
+    remaining: list[Structure] = field(default_factory=list)
+    conclusion: list[str] = field(default_factory=list)
+    residual_after: ResidualData | None = None
+
+    @property
+    def no_effect_needed(self) -> bool:
+        return not self.enabled and not self.remaining
+
+
+def _eta2(x: np.ndarray, y: np.ndarray, n_bins: int = 10) -> float:
+    """Correlation ratio: the share of ``y``'s variance explained by bins of ``x`` (0..1)."""
+    ok = np.isfinite(x) & np.isfinite(y)
+    x, y = x[ok], y[ok]
+    if x.size < 5 * n_bins or np.ptp(x) == 0 or np.var(y) == 0:
+        return 0.0
+    edges = np.unique(np.quantile(x, np.linspace(0, 1, n_bins + 1)))
+    idx = np.clip(np.searchsorted(edges, x, side="right") - 1, 0, len(edges) - 2)
+    counts = np.bincount(idx)
+    means = np.bincount(idx, weights=y) / np.maximum(counts, 1)
+    return float(np.sum(counts * (means - y.mean()) ** 2) / (y.size * np.var(y)))
+
+
+def _correlations(data: ResidualData, target: str) -> dict[str, float]:
+    """eta^2 of the signed residual and of its magnitude with each variable; the larger of the two."""
+    out: dict[str, float] = {}
+
+    def both(name, x, r):
+        out[name] = max(_eta2(x, r), _eta2(x, np.abs(r)))
+
+    if target == "photometric":
+        r = data.rgb_residual().mean(-1)
+        v = data.rgb_valid
+        frame = np.broadcast_to(np.arange(v.shape[0])[:, None, None], v.shape)
+        both("frame index", frame[v].astype(float), r[v])
+        both("image radius", data.radius()[v], r[v])
+        both("brightness", data.rgb_pred.mean(-1)[v], r[v])
+    elif target in ("depth", "depth-noise"):
+        r = data.depth_residual()
+        ok = np.isfinite(r)
+        frame = np.broadcast_to(np.arange(r.shape[0])[:, None, None], r.shape)
+        both("frame index", frame[ok].astype(float), r[ok])
+        both("depth", data.depth_pred[ok].astype(float), r[ok])
+        t, h, w = r.shape
+        u, vv = np.meshgrid(np.arange(w) - w / 2, np.arange(h) - h / 2)
+        rad = np.broadcast_to(np.hypot(u, vv) / np.hypot(w / 2, h / 2), r.shape)
+        both("image radius", rad[ok], r[ok])
+    elif target == "joint-tracks":
+        r = np.linalg.norm(data.track_residual(), axis=-1)
+        ok = data.tracks_valid
+        frame = np.broadcast_to(np.arange(ok.shape[0])[:, None], ok.shape)
+        q = np.broadcast_to(data.tracks.q[:, None], ok.shape)
+        out["frame index"] = _eta2(frame[ok].astype(float), r[ok])
+        out["joint state"] = _eta2(q[ok], r[ok])
+    return out
+
+
+def _floor(data: ResidualData, target: str) -> float:
+    f = noise_floor(data, target)
+    return f + _DEPTH_NOISE_TOLERANCE if target == "depth-noise" else f
+
+
+def _significant(sig: Signature, floor: float, cfg: DiagnoseConfig) -> bool:
+    gain = sig.energy_before - sig.energy_after
+    return bool(np.isfinite(gain) and sig.explained_fraction >= cfg.min_explained and gain >= cfg.min_gain_over_floor * floor)
+
+
+def _signature(effect: Effect, data: ResidualData) -> Signature:
+    """``effect.signature(data)``; a plugin that fails or answers nonsense is named in an InputError."""
+    try:
+        sig = effect.signature(data)
+    except InputError:
+        raise
+    except Exception as exc:  # a user plugin's bug must name the plugin, not end in a numpy traceback
+        raise InputError(
+            f"effect {effect.name!r} ({type(effect).__module__}.{type(effect).__name__}) failed on the residuals: "
+            f"{type(exc).__name__}: {exc}. Fix the plugin or leave it out of DiagnoseConfig.effects."
+        ) from exc
+    if not isinstance(sig, Signature) or not isinstance(sig.params, dict):
+        raise InputError(
+            f"effect {effect.name!r} returned {type(sig).__name__} from signature(); return a Signature "
+            "(or override only fit and apply)."
+        )
+    return sig
+
+
+def diagnose(
+    data: ResidualData, effects: dict[str, Effect] | None = None, config: DiagnoseConfig | None = None
+) -> Diagnosis:
+    """Rank the effects by the residual they explain, enable the significant ones, report what is left.
+
+    Args:
+        data: predictions and measurements (``make_residual_data``).
+        effects: ``{name: Effect}``; every registered effect when None.
+        config: thresholds; ``DiagnoseConfig()`` when None.
+    """
+    cfg = config or DiagnoseConfig()
+    pool = {n: e for n, e in (effects if effects is not None else registered_effects()).items() if e.applies(data)}
+    targets = [t for t in TARGETS if np.isfinite(target_energy(data, t))]
+    floors = {t: _floor(data, t) for t in targets}
+    before = {t: target_energy(data, t) for t in targets}
+
+    current = data
+    enabled: list[Signature] = []
+    ranking: list[Signature] = []
+    significant: tuple[str, ...] = ()
+    for round_ in range(cfg.max_rounds):
+        sigs = [_signature(e, current) for e in pool.values()]
+        sigs = [s for s in sigs if np.isfinite(s.explained_fraction)]
+        ok = {s.name for s in sigs if _significant(s, floors[s.target], cfg)}
+        # Significant effects first: a large share of a residual already at the floor is no finding.
+        sigs.sort(key=lambda s: (s.name not in ok, -s.explained_fraction))
+        if round_ == 0:
+            ranking, significant = sigs, tuple(s.name for s in sigs if s.name in ok)
+        best = sigs[0] if sigs and sigs[0].name in ok else None
+        if best is None:
+            break
+        enabled.append(best)
+        current = pool.pop(best.name).apply(current, best.params)
+
+    after = {t: target_energy(current, t) for t in targets}
+    # The floor after: an enabled noise model changes what "only noise left" means for depth.
+    floors_after = {t: _floor(current, t) for t in targets}
+    remaining = [
+        Structure(t, after[t], floors_after[t], _correlations(current, t))
+        for t in targets
+        if after[t] > cfg.structure_ratio * floors_after[t]
+    ]
+    conclusion = []
+    for s in enabled:
+        conclusion.append(f"{s.name} explains {100 * s.explained_fraction:.0f}% of the {s.target} residual.")
+    for st in remaining:
+        named = sorted(((v, k) for k, v in st.correlations.items() if v >= cfg.min_correlation), reverse=True)
+        where = (f", correlated with {named[0][1]} (eta^2 = {named[0][0]:.2f})") if named else ""
+        conclusion.append(
+            f"Unexplained structure remains in the {st.target} residual ({st.ratio:.1f}x the noise floor){where}."
+        )
+    if not enabled and not remaining:
+        conclusion.append("No effect needed: every residual is at the noise floor.")
+    elif not enabled:
+        conclusion.insert(0, "No known effect explains a significant share of the residual.")
+    return Diagnosis(ranking, enabled, before, after, floors, significant, remaining, conclusion, current)
