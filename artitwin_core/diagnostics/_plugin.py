@@ -119,7 +119,15 @@ def _check(effect: Effect) -> Effect:
 
 def register_effect(effect: Effect | type[Effect], *, replace: bool = False) -> Effect:
     """Add an effect (instance or class, instantiated without arguments) to the registry."""
-    inst = _check(effect() if isinstance(effect, type) else effect)
+    if isinstance(effect, type):
+        if not issubclass(effect, Effect):
+            raise InputError(f"{effect.__name__} is not an artitwin_core.diagnostics.Effect; subclass Effect.")
+        try:
+            effect = effect()
+        except TypeError as exc:
+            raise InputError(f"effect class {effect.__name__} cannot be built without arguments ({exc}); "
+                             "give its parameters defaults or register an instance.") from exc
+    inst = _check(effect)
     if inst.name in _REGISTRY and not replace and type(_REGISTRY[inst.name]) is not type(inst):
         raise InputError(
             f"an effect named {inst.name!r} is already registered ({type(_REGISTRY[inst.name]).__name__}); "
@@ -143,7 +151,10 @@ def _load_target(spec: str, source: str) -> list[Effect]:
     except (ImportError, AttributeError) as exc:
         raise InputError(f"{source}: cannot load {spec!r} ({exc}); is the module on PYTHONPATH?") from exc
     items = obj if isinstance(obj, list | tuple) else [obj]
-    return [register_effect(item, replace=True) for item in items]
+    try:
+        return [register_effect(item, replace=True) for item in items]
+    except InputError as exc:
+        raise InputError(f"{source}: {spec!r}: {exc}") from exc
 
 
 def discover_effects(extra: tuple[str, ...] = ()) -> list[str]:

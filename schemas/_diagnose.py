@@ -1,0 +1,126 @@
+"""Model against measurement: the predicted views, the diagnose stage's config and its report.
+
+``ViewPrediction`` is what the twin says the static recording's sensors should have measured (RGB,
+depth, coverage), frame for frame. ``DiagnosisReport`` ranks the physical effects by the residual
+they explain, with fitted parameters, energies before and after, per-frame error curves and the
+self-contained HTML report a user opens.
+"""
+
+from __future__ import annotations
+
+from typing import Any
+
+from pydantic import Field
+
+from schemas._artifacts import ReportImage
+from schemas._base import Array, Artifact, StageConfig
+
+
+class PredictViewsConfig(StageConfig):
+    """Rendering the canonical Gaussians into every frame of the static recording."""
+
+    backend: str = Field(default="auto", description="Rasterizer backend: auto, cpu or cuda.")
+    min_alpha: float = Field(
+        default=0.5, ge=0, le=1, description="Pixels whose rendered opacity is below this are not compared."
+    )
+
+
+class DiagnoseConfig(StageConfig):
+    """Thresholds and plugins of the diagnosis (``artitwin_core.diagnostics.diagnose``)."""
+
+    effects: list[str] = Field(
+        default_factory=list,
+        description="Names of the effects to test (empty = every registered effect, user plugins included).",
+    )
+    effect_modules: list[str] = Field(
+        default_factory=list,
+        description="Extra user effects to load, 'module:attr' each (as the ARTITWIN_EFFECTS variable).",
+    )
+    min_explained: float = Field(
+        default=0.2, ge=0, le=1, description="An effect must explain at least this fraction of its target residual."
+    )
+    min_gain_over_floor: float = Field(
+        default=0.5, ge=0, description="... and lower its target's energy by at least this many noise floors."
+    )
+    structure_ratio: float = Field(
+        default=2.0, gt=0, description="A residual left above this many noise floors is reported as unexplained structure."
+    )
+    max_rounds: int = Field(default=4, ge=1, description="At most this many effects are enabled, greedily.")
+    depth_sigma_a_m: float = Field(
+        default=0.001, gt=0, description="Depth noise the twin assumes, sigma(z) = a + b z^2: a, metres."
+    )
+    depth_sigma_b_per_m: float = Field(
+        default=0.002, ge=0, description="Depth noise the twin assumes, sigma(z) = a + b z^2: b, 1/metres."
+    )
+    min_confidence: int = Field(
+        default=1, ge=0, le=2, description="Depth pixels with ARKit confidence below this are not compared."
+    )
+    track_noise_m: float = Field(
+        default=0.002, gt=0, description="Per-coordinate noise of one 3D track observation, metres (the track floor)."
+    )
+    min_tracks_count: int = Field(
+        default=10, ge=1, description="A joint with fewer valid tracks than this is not diagnosed."
+    )
+
+
+class ViewPrediction(Artifact):
+    """The twin's prediction of one recording, frame for frame (e.g. the canonical 3DGS rendered at its poses)."""
+
+    kind = "view_prediction"
+    schema_version = 1
+
+    rgb: Array("uint8", "T H W 3") = Field(description="Predicted sRGB at the capture's RGB size, [T, H, W, 3] uint8.")
+    depth: Array("float32", "T h w") = Field(
+        description="Predicted z-depth at the capture's depth size, metres, [T, h, w]; NaN (or 0) where none."
+    )
+    coverage: Array("bool", "T H W") | None = Field(
+        default=None, description="Pixels the prediction covers (e.g. render opacity > 0.5), [T, H, W]; None = all."
+    )
+    frame_ids: Array("int64", "T") = Field(description="Frame numbers of the capture these predictions are for, [T].")
+
+
+class EffectFinding(Artifact):
+    """One effect's signature on the residual: how much of it it explains and with what parameters."""
+
+    kind = "effect_finding"
+    schema_version = 1
+
+    name: str = Field(description="The effect's registered name, e.g. 'vignetting'.")
+    scope: str = Field(description="What was diagnosed: 'static recording' or a joint name such as 'joint_0'.")
+    target: str = Field(description="The residual it targets: photometric, depth, depth-noise or joint-tracks.")
+    explained_frac: float = Field(description="1 - energy_after / energy_before on its target (may be < 0).")
+    energy_before: float = Field(description="Target energy before the effect (units of the target, see docs/effects.md).")
+    energy_after: float = Field(description="Target energy with the fitted effect applied, same units.")
+    significant: bool = Field(default=False, description="True when it passed the significance test against the noise floor.")
+    enabled: bool = Field(default=False, description="True when the diagnosis selected it (greedy, in rank order).")
+    params: dict[str, Any] = Field(
+        default_factory=dict, description="Fitted parameter values by name (units in the name: _m, _rad, _per_m...)."
+    )
+
+
+class DiagnosisReport(Artifact):
+    """Where the twin fails against the measurement and which physical effects it is missing."""
+
+    kind = "diagnosis_report"
+    schema_version = 1
+
+    findings: list[EffectFinding] = Field(
+        description="Every applicable effect per scope, ranked: significant first, then by explained fraction."
+    )
+    enabled: list[str] = Field(
+        default_factory=list, description="Selected effects in order, 'scope/name' each (e.g. 'joint_0/screw_joint')."
+    )
+    metrics: dict[str, float] = Field(
+        default_factory=dict,
+        description="'<scope>/<target>_energy_before|after|floor' energies and summary counts (*_count).",
+    )
+    per_frame: dict[str, list[float]] = Field(
+        default_factory=dict,
+        description="Per-frame error curves '<scope>/<curve>_before|after' (rgb_rms linear, depth_rms_m, track_rms_m).",
+    )
+    conclusion: list[str] = Field(default_factory=list, description="The verdict in plain language, one line per finding.")
+    no_effect_needed: bool = Field(
+        default=False, description="True when every residual is at its noise floor and no effect is enabled."
+    )
+    images: list[ReportImage] = Field(default_factory=list, description="Residual maps of the worst frames, before and after.")
+    html: str = Field(default="", description="The self-contained HTML report (inline SVG plots and PNG images).")

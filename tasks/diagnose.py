@@ -1,0 +1,201 @@
+"""Stages: predict what the sensors should have measured, and diagnose the twin against it.
+
+``predict_views`` renders the canonical Gaussians at every frame of the static recording (RGB at
+the RGB size, depth at the depth size). ``diagnose`` compares a prediction with the capture, and
+each fitted joint with its part's 3D tracks, ranks the physical-effect plugins by the residual
+they explain, and returns the ranking, the energies before and after, per-frame error curves and
+an HTML report. Either half may be empty: an empty ``JointSet`` diagnoses the sensor alone.
+"""
+
+from __future__ import annotations
+
+import io
+import math
+
+import numpy as np
+from PIL import Image
+
+from artitwin_core import InputError
+from artitwin_core.diagnostics import (
+    Diagnosis,
+    ResidualData,
+    discover_effects,
+    make_residual_data,
+    per_frame_errors,
+    registered_effects,
+    render_html,
+    track_model_from_joint,
+)
+from artitwin_core.diagnostics import DiagnoseConfig as CoreDiagnoseConfig
+from artitwin_core.diagnostics import diagnose as run_diagnosis
+from artitwin_core.diagnostics._report import residual_maps
+from artitwin_core.gaussians import GaussianParams
+from artitwin_core.joints import Joint
+from artitwin_core.reconstruction import render_view
+from schemas import CaptureArtifact, GaussianCheckpoint, JointSet, ReportImage, TrajectoriesArtifact
+from schemas._diagnose import DiagnoseConfig, DiagnosisReport, EffectFinding, PredictViewsConfig, ViewPrediction
+from tasks._convert import to_core
+from tasks._stage import stage
+
+STATIC_SCOPE = "static recording"
+
+
+@stage(name="predict_views", version=1, config=PredictViewsConfig, output=ViewPrediction)
+def predict_views(capture: CaptureArtifact, checkpoint: GaussianCheckpoint, config: PredictViewsConfig) -> ViewPrediction:
+    """Render the Gaussians at the capture's recorded poses: RGB at RGB size, depth at depth size."""
+    params = to_core(GaussianParams, checkpoint)
+    _, h, w, _ = capture.rgb.shape
+    _, dh, dw = capture.depth.shape
+    rgb, depth, cover = [], [], []
+    for t in range(capture.rgb.shape[0]):
+        pose = capture.world_from_camera[t]
+        colour, _, alpha = render_view(params, pose, capture.rgb_intrinsics[t], w, h, backend=config.backend)
+        _, z, alpha_d = render_view(params, pose, capture.depth_intrinsics[t], dw, dh, backend=config.backend)
+        rgb.append(np.round(np.clip(colour, 0, 1) * 255).astype(np.uint8))
+        depth.append(np.where(alpha_d >= config.min_alpha, z, np.nan).astype(np.float32))
+        cover.append(alpha >= config.min_alpha)
+    return ViewPrediction(rgb=np.stack(rgb), depth=np.stack(depth), coverage=np.stack(cover),
+                          frame_ids=capture.frame_ids.copy())
+
+
+def _json_safe(value):
+    """Fitted parameters as JSON the store can round-trip (NaN and inf become None)."""
+    if isinstance(value, dict):
+        return {str(k): _json_safe(v) for k, v in value.items()}
+    if isinstance(value, np.ndarray):
+        return _json_safe(value.tolist())
+    if isinstance(value, list | tuple):
+        return [_json_safe(v) for v in value]
+    if isinstance(value, bool | np.bool_):
+        return bool(value)
+    if isinstance(value, int | np.integer):
+        return int(value)
+    if isinstance(value, float | np.floating):
+        return float(value) if math.isfinite(value) else None
+    return value if isinstance(value, str) or value is None else str(value)
+
+
+def _sensor_data(capture: CaptureArtifact, prediction: ViewPrediction, config: DiagnoseConfig) -> ResidualData:
+    if prediction.rgb.shape != capture.rgb.shape:
+        raise InputError(
+            f"diagnose: the prediction's RGB is {prediction.rgb.shape}, the capture's {capture.rgb.shape}; "
+            "predict every frame of the same capture (predict_views)."
+        )
+    if prediction.depth.shape != capture.depth.shape:
+        raise InputError(
+            f"diagnose: the prediction's depth is {prediction.depth.shape}, the capture's {capture.depth.shape}; "
+            "render the depth with the capture's depth intrinsics and size."
+        )
+    if not np.array_equal(prediction.frame_ids, capture.frame_ids):
+        raise InputError("diagnose: the prediction's frame_ids differ from the capture's; predict this capture's frames.")
+    return make_residual_data(
+        rgb_pred=prediction.rgb, rgb_meas=capture.rgb, rgb_intrinsics=capture.rgb_intrinsics,
+        rgb_mask=prediction.coverage, depth_pred=prediction.depth, depth_meas=capture.depth,
+        depth_confidence=capture.confidence, depth_sigma=(config.depth_sigma_a_m, config.depth_sigma_b_per_m),
+        min_confidence=config.min_confidence, timestamps=capture.timestamps,
+    )
+
+
+def _track_data(joints: JointSet, trajectories: TrajectoriesArtifact, config: DiagnoseConfig) -> list[tuple[str, ResidualData]]:
+    """One residual set per joint: its part's tracks against the joint's motion."""
+    if not joints.joints:
+        return []
+    n_frames = trajectories.points_in_world.shape[0]
+    part_ids = trajectories.part_ids if trajectories.part_ids is not None else np.zeros(trajectories.valid.shape[1], np.int32)
+    out = []
+    for k, jp in enumerate(joints.joints):
+        if jp.q.shape[0] != n_frames:
+            raise InputError(
+                f"diagnose: joint {jp.name!r} has {jp.q.shape[0]} states but the trajectories have {n_frames} frames; "
+                "fit the joints on these trajectories."
+            )
+        keep = part_ids == k
+        if np.count_nonzero(trajectories.valid[:, keep].any(0)) < config.min_tracks_count or jp.joint_type == "fixed":
+            continue
+        joint = to_core(Joint, jp)
+        obs, valid = trajectories.points_in_world[:, keep], trajectories.valid[:, keep]
+        model = track_model_from_joint(joint, obs, valid)
+        out.append((jp.name, make_residual_data(tracks=model, tracks_obs=obs, tracks_valid=valid,
+                                                track_noise_m=config.track_noise_m)))
+    return out
+
+
+def _core_config(config: DiagnoseConfig) -> CoreDiagnoseConfig:
+    return CoreDiagnoseConfig(
+        min_explained=config.min_explained, min_gain_over_floor=config.min_gain_over_floor,
+        structure_ratio=config.structure_ratio, max_rounds=config.max_rounds,
+    )
+
+
+def _effects(config: DiagnoseConfig) -> dict:
+    discover_effects(tuple(config.effect_modules))
+    pool = registered_effects()
+    unknown = sorted(set(config.effects) - set(pool))
+    if unknown:
+        raise InputError(
+            f"DiagnoseConfig.effects names unknown effects {unknown}; registered: {sorted(pool)}. "
+            "Load user effects with effect_modules or the ARTITWIN_EFFECTS variable."
+        )
+    return {n: e for n, e in pool.items() if not config.effects or n in config.effects}
+
+
+def diagnose_sections(
+    capture: CaptureArtifact | None,
+    prediction: ViewPrediction | None,
+    joints: JointSet | None,
+    trajectories: TrajectoriesArtifact | None,
+    config: DiagnoseConfig,
+) -> list[tuple[str, Diagnosis, ResidualData]]:
+    """The diagnoses behind the report: the static recording (when given) and each joint's tracks."""
+    effects, core_cfg = _effects(config), _core_config(config)
+    data: list[tuple[str, ResidualData]] = []
+    if capture is not None and prediction is not None:
+        data.append((STATIC_SCOPE, _sensor_data(capture, prediction, config)))
+    if joints is not None and trajectories is not None:
+        data += _track_data(joints, trajectories, config)
+    return [(scope, run_diagnosis(d, effects, core_cfg), d) for scope, d in data]
+
+
+def report_from_sections(sections: list[tuple[str, Diagnosis, ResidualData]], title: str = "ArtiTwin diagnosis") -> DiagnosisReport:
+    """Findings, energies, curves, images and HTML of the diagnoses, as one artifact."""
+    findings, enabled, metrics, per_frame, conclusion, images = [], [], {}, {}, [], []
+    for scope, dg, data in sections:
+        on = [s.name for s in dg.enabled]
+        enabled += [f"{scope}/{n}" for n in on]
+        for s in dg.ranking:
+            findings.append(EffectFinding(
+                name=s.name, scope=scope, target=s.target, explained_frac=float(s.explained_fraction),
+                energy_before=float(s.energy_before), energy_after=float(s.energy_after),
+                significant=s.name in dg.significant, enabled=s.name in on, params=_json_safe(s.params),
+            ))
+        for t in dg.energy_before:
+            metrics[f"{scope}/{t}_energy_before"] = float(dg.energy_before[t])
+            metrics[f"{scope}/{t}_energy_after"] = float(dg.energy_after[t])
+            metrics[f"{scope}/{t}_energy_floor"] = float(dg.floors[t])
+        after = dg.residual_after if dg.residual_after is not None else data
+        for when, d in (("before", data), ("after", after)):
+            for name, curve in per_frame_errors(d).items():
+                per_frame[f"{scope}/{name}_{when}"] = [float(v) for v in curve]
+        conclusion += [f"{scope}: {line}" for line in dg.conclusion]
+        for caption, png in residual_maps(data, after, n_frames=1):
+            pixels = np.asarray(Image.open(io.BytesIO(png)).convert("RGB"))
+            images.append(ReportImage(pixels=pixels, caption=f"{scope}: {caption}"))
+    metrics["enabled_count"] = float(len(enabled))
+    metrics["significant_count"] = float(sum(f.significant for f in findings))
+    return DiagnosisReport(
+        findings=findings, enabled=enabled, metrics=metrics, per_frame=per_frame, conclusion=conclusion,
+        no_effect_needed=bool(sections) and all(dg.no_effect_needed for _, dg, _ in sections),
+        images=images, html=render_html(sections, title),
+    )
+
+
+@stage(name="diagnose", version=1, config=DiagnoseConfig, output=DiagnosisReport)
+def diagnose(
+    capture: CaptureArtifact,
+    prediction: ViewPrediction,
+    joints: JointSet,
+    trajectories: TrajectoriesArtifact,
+    config: DiagnoseConfig,
+) -> DiagnosisReport:
+    """Diagnose the twin: the static recording against its predicted views, each joint against its tracks."""
+    return report_from_sections(diagnose_sections(capture, prediction, joints, trajectories, config))
