@@ -191,7 +191,7 @@ def diagnose(
     significant: tuple[str, ...] = ()
     for round_ in range(cfg.max_rounds):
         sigs = [_signature(e, current) for e in pool.values()]
-        sigs = [s for s in sigs if np.isfinite(s.explained_fraction)]
+        sigs = [s for s in sigs if np.isfinite(s.explained_fraction) and s.target in floors]
         ok = {s.name for s in sigs if _significant(s, floors[s.target], cfg)}
         # Significant effects first: a large share of a residual already at the floor is no finding.
         sigs.sort(key=lambda s: (s.name not in ok, -s.explained_fraction))

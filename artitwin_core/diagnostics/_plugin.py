@@ -20,6 +20,8 @@ from abc import ABC, abstractmethod
 from dataclasses import dataclass, field
 from importlib import metadata
 
+import numpy as np
+
 from artitwin_core._errors import InputError
 from artitwin_core.diagnostics._residuals import TARGETS, ResidualData, target_energy
 
@@ -100,7 +102,8 @@ class Effect(ABC):
         params, evidence = self.fit(data)
         before = target_energy(data, self.target)
         after = target_energy(self.apply(data, params), self.target)
-        frac = 1.0 - after / before if before > 0 else 0.0
+        # NaN when the target cannot be measured on this data (too few depth pixels, no tracks...).
+        frac = (1.0 - after / before if before > 0 else 0.0) if np.isfinite(before) else float("nan")
         return Signature(self.name, self.target, float(frac), before, after, params, evidence)
 
 

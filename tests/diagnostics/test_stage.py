@@ -91,3 +91,27 @@ def test_stage_refuses_a_prediction_of_another_size():
     small = prediction.model_copy(update={"depth": prediction.depth[:, :-1]})
     with pytest.raises(InputError, match="depth intrinsics and size"):
         diagnose(capture, small, joints, traj, DiagnoseConfig())
+
+
+def test_predict_views_renders_every_frame_at_the_capture_sizes():
+    from schemas import GaussianCheckpoint
+    from schemas._diagnose import PredictViewsConfig
+    from tasks.diagnose import predict_views
+
+    capture = to_artifact(CaptureArtifact, scene("door").static)
+    capture = capture.model_copy(update={k: getattr(capture, k)[:3] for k in (
+        "rgb", "depth", "confidence", "rgb_intrinsics", "depth_intrinsics", "world_from_camera", "timestamps", "frame_ids")})
+    rng = np.random.default_rng(0)
+    n = 200
+    centre = capture.world_from_camera[0, :3, 3] + 1.5 * capture.world_from_camera[0, :3, 2]  # 1.5 m ahead
+    ckpt = GaussianCheckpoint(
+        means=(centre + 0.3 * rng.standard_normal((n, 3))).astype(np.float32),
+        quats_wxyz=np.tile(np.float32([1, 0, 0, 0]), (n, 1)), log_scales=np.full((n, 3), np.log(0.05), np.float32),
+        opacity_logits=np.full(n, 3.0, np.float32), sh=(0.3 * rng.standard_normal((n, 1, 3))).astype(np.float32),
+        labels=np.zeros(n, np.int32))
+    pred = predict_views(capture, ckpt, PredictViewsConfig(backend="cpu"))
+    assert pred.rgb.shape == capture.rgb.shape and pred.depth.shape == capture.depth.shape
+    assert 0.05 < pred.coverage[0].mean() < 0.99
+    assert 0.8 < np.nanmedian(pred.depth[0]) < 2.2  # the blob sits 1.5 m ahead of frame 0
+    report = diagnose(capture, pred, JointSet(joints=[]), _artifacts(())[3], DiagnoseConfig())
+    assert report.findings and report.html
