@@ -16,6 +16,7 @@ import numpy as np
 from PIL import Image
 
 from artitwin_core import InputError
+from artitwin_core.diagnostics import DiagnoseConfig as CoreDiagnoseConfig
 from artitwin_core.diagnostics import (
     Diagnosis,
     ResidualData,
@@ -26,14 +27,19 @@ from artitwin_core.diagnostics import (
     render_html,
     track_model_from_joint,
 )
-from artitwin_core.diagnostics import DiagnoseConfig as CoreDiagnoseConfig
 from artitwin_core.diagnostics import diagnose as run_diagnosis
 from artitwin_core.diagnostics._report import residual_maps
 from artitwin_core.gaussians import GaussianParams
 from artitwin_core.joints import Joint
 from artitwin_core.reconstruction import render_view
 from schemas import CaptureArtifact, GaussianCheckpoint, JointSet, ReportImage, TrajectoriesArtifact
-from schemas._diagnose import DiagnoseConfig, DiagnosisReport, EffectFinding, PredictViewsConfig, ViewPrediction
+from schemas._diagnose import (
+    DiagnoseConfig,
+    DiagnosisReport,
+    EffectFinding,
+    PredictViewsConfig,
+    ViewPrediction,
+)
 from tasks._convert import to_core
 from tasks._stage import stage
 

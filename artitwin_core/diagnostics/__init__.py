@@ -29,6 +29,7 @@ from artitwin_core.diagnostics._plugin import (
     register_effect,
     registered_effects,
 )
+from artitwin_core.diagnostics._report import render_html, write_html_report
 from artitwin_core.diagnostics._residuals import (
     TARGETS,
     ResidualData,
@@ -39,7 +40,6 @@ from artitwin_core.diagnostics._residuals import (
     target_energy,
     track_model_from_joint,
 )
-from artitwin_core.diagnostics._report import render_html, write_html_report
 
 __all__ = [
     "ENTRY_POINT_GROUP",

@@ -9,8 +9,14 @@ import textwrap
 import pytest
 
 from artitwin_core import InputError
-from artitwin_core.diagnostics import ENV_VAR, diagnose, discover_effects, register_effect, registered_effects
-from artitwin_core.diagnostics import _plugin
+from artitwin_core.diagnostics import (
+    ENV_VAR,
+    _plugin,
+    diagnose,
+    discover_effects,
+    register_effect,
+    registered_effects,
+)
 from tests.diagnostics._scenes import residual_data
 
 PLUGIN = textwrap.dedent('''
