@@ -196,7 +196,7 @@ def report_from_sections(sections: list[tuple[str, Diagnosis, ResidualData]], ti
 
 
 @stage(name="diagnose", version=1, config=DiagnoseConfig, output=DiagnosisReport)
-def diagnose(
+def diagnose_twin(
     capture: CaptureArtifact,
     prediction: ViewPrediction,
     joints: JointSet,

@@ -17,7 +17,7 @@ from artitwin_core.synth import render_state
 from schemas import Artifact, CaptureArtifact, JointParams, JointSet, TrajectoriesArtifact
 from schemas._diagnose import DiagnoseConfig, DiagnosisReport, ViewPrediction
 from tasks._convert import to_artifact
-from tasks.diagnose import STATIC_SCOPE, diagnose
+from tasks.diagnose import STATIC_SCOPE, diagnose_twin
 from tests.diagnostics._scenes import scene
 
 EFFECTS = (("exposure", {}), ("screw_joint", {}))
@@ -44,7 +44,7 @@ def _artifacts(effects):
 
 def test_stage_names_both_effects_and_the_error_falls():
     capture, prediction, joints, traj = _artifacts(EFFECTS)
-    report = diagnose(capture, prediction, joints, traj, DiagnoseConfig())
+    report = diagnose_twin(capture, prediction, joints, traj, DiagnoseConfig())
     assert report.enabled == [f"{STATIC_SCOPE}/exposure_white_balance", "joint_0/screw_joint"]
     assert not report.no_effect_needed
     m = report.metrics
@@ -70,7 +70,7 @@ def test_stage_names_both_effects_and_the_error_falls():
 
 
 def test_stage_on_a_clean_scene_says_no_effect_is_needed():
-    report = diagnose(*_artifacts(()), DiagnoseConfig())
+    report = diagnose_twin(*_artifacts(()), DiagnoseConfig())
     assert report.enabled == [] and report.no_effect_needed
     assert report.metrics["significant_count"] == 0
     assert len(report.findings) >= 5  # tested, found nothing
@@ -78,19 +78,19 @@ def test_stage_on_a_clean_scene_says_no_effect_is_needed():
 
 def test_stage_restricted_to_named_effects():
     capture, prediction, joints, traj = _artifacts(EFFECTS)
-    report = diagnose(capture, prediction, JointSet(joints=[]), traj, DiagnoseConfig(effects=["depth_scale_offset"]))
+    report = diagnose_twin(capture, prediction, JointSet(joints=[]), traj, DiagnoseConfig(effects=["depth_scale_offset"]))
     assert {f.name for f in report.findings} == {"depth_scale_offset"}
     assert report.enabled == []
     assert any("Unexplained structure" in line and "photometric" in line for line in report.conclusion)
     with pytest.raises(InputError, match="unknown effects \\['glue_creep'\\]"):
-        diagnose(capture, prediction, joints, traj, DiagnoseConfig(effects=["glue_creep"]))
+        diagnose_twin(capture, prediction, joints, traj, DiagnoseConfig(effects=["glue_creep"]))
 
 
 def test_stage_refuses_a_prediction_of_another_size():
     capture, prediction, joints, traj = _artifacts(())
     small = prediction.model_copy(update={"depth": prediction.depth[:, :-1]})
     with pytest.raises(InputError, match="depth intrinsics and size"):
-        diagnose(capture, small, joints, traj, DiagnoseConfig())
+        diagnose_twin(capture, small, joints, traj, DiagnoseConfig())
 
 
 def test_predict_views_renders_every_frame_at_the_capture_sizes():
@@ -113,5 +113,5 @@ def test_predict_views_renders_every_frame_at_the_capture_sizes():
     assert pred.rgb.shape == capture.rgb.shape and pred.depth.shape == capture.depth.shape
     assert 0.05 < pred.coverage[0].mean() < 0.99
     assert 0.8 < np.nanmedian(pred.depth[0]) < 2.2  # the blob sits 1.5 m ahead of frame 0
-    report = diagnose(capture, pred, JointSet(joints=[]), _artifacts(())[3], DiagnoseConfig())
+    report = diagnose_twin(capture, pred, JointSet(joints=[]), _artifacts(())[3], DiagnoseConfig())
     assert report.findings and report.html
