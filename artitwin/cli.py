@@ -71,13 +71,17 @@ def _print_summary(summary: dict[str, Any], out: Path | None) -> None:
     for name, s in summary["stages"].items():
         for note in s.get("notes", []):
             console.print(f"[yellow]{name}:[/] {note}")
+    for j in summary.get("joints", []):
+        console.print(f"joint {j['name']}: {j['type']}, axis {[round(v, 3) for v in j['axis']]}, "
+                      f"pivot {[round(v, 3) for v in j['pivot']]} m, range {[round(v, 3) for v in j['range']]}")
+    if summary.get("exports"):
+        urdf = summary["exports"].get("export/twin.urdf")
+        console.print(f"exports: {len(summary['exports'])} files under {out}" + (f" (URDF: {urdf})" if urdf else ""))
     if out is not None:
         console.print(f"summary: {out / 'summary.json'}")
 
 
 def _run_scene(scene: Path, out: Path, config, store: str | None, use_prefect: bool) -> dict[str, Any]:
-    from flows._pipeline import write_summary
-
     if not scene.exists():
         _fail(f"scene folder {scene} does not exist")
     with console.status(f"running stages on {scene} ..."):
@@ -88,8 +92,7 @@ def _run_scene(scene: Path, out: Path, config, store: str | None, use_prefect: b
         else:
             from flows.scene import run_scene_inline
 
-            summary = run_scene_inline(scene, config, _store_url(store))
-            write_summary(summary, out)
+            summary = run_scene_inline(scene, config, _store_url(store), out=out)
     return summary
 
 

@@ -9,6 +9,7 @@ from __future__ import annotations
 import json
 import math
 import os
+import shutil
 import subprocess
 import time
 from dataclasses import asdict
@@ -19,7 +20,7 @@ from typing import Any
 from artitwin_core.capture import find_scene_recordings, recording_files
 from flows._runner import Executor, StageRun, raw_input
 from infra.store import ArtifactStore
-from schemas import JointSet, PipelineConfig, Registration, StageReport
+from schemas import DiagnosisReport, ExportBundle, JointSet, PipelineConfig, Registration, StageReport
 
 SUMMARY_VERSION = 1
 
@@ -50,7 +51,27 @@ def scene_pipeline(scene: str | Path, config: PipelineConfig, ex: Executor) -> d
     )
     # III. tracks and joints
     tracks = h["track"] = ex.submit("track", config.track, {"dynamic": dynamic, "masks": masks, "registration": reg}, "dynamic")
-    h["fit_joints"] = ex.submit("fit_joints", config.fit_joints, {"trajectories": tracks}, "dynamic")
+    joints = h["fit_joints"] = ex.submit("fit_joints", config.fit_joints, {"trajectories": tracks}, "dynamic")
+    # Model against measurement: the twin's predictions beside what the sensors measured
+    prediction = h["predict_views"] = ex.submit(
+        "predict_views", config.predict_views, {"capture": static, "checkpoint": gaussians}, "static"
+    )
+    h["diagnose"] = ex.submit(
+        "diagnose",
+        config.diagnose,
+        {"capture": static, "prediction": prediction, "joints": joints, "trajectories": tracks},
+        "scene",
+    )
+    # V. simulator files of the twin
+    h["export"] = ex.submit(
+        "export",
+        config.export,
+        {
+            "static": static, "static_poses": poses, "dynamic": dynamic, "registration": reg, "masks": masks,
+            "joints": joints, "gaussians": gaussians,
+        },
+        "scene",
+    )
     return h
 
 
@@ -84,6 +105,16 @@ def build_summary(scene: str | Path, store: ArtifactStore, runs: dict[str, Stage
             reg = store.get(run.key, Registration)
             entry["metrics"] = {"residual_m": reg.residual_m, "inlier_frac": reg.inlier_fraction}
             entry["canonical_from_session"] = reg.canonical_from_session.tolist()
+        elif run.kind == DiagnosisReport.kind:
+            report = store.get(run.key, DiagnosisReport)
+            entry["metrics"] = {k: _finite(v) for k, v in report.metrics.items()}
+            entry["notes"] = list(report.conclusion)
+            entry["effects_enabled"] = list(report.enabled)
+        elif run.kind == ExportBundle.kind:
+            bundle = store.get(run.key, ExportBundle)
+            entry["metrics"] = {k: _finite(v) for k, v in bundle.metrics.items()}
+            entry["notes"] = list(bundle.notes)
+            entry["files"] = bundle.paths
         stages[name] = entry
     joints = []
     for run in runs.values():
@@ -111,6 +142,45 @@ def build_summary(scene: str | Path, store: ArtifactStore, runs: dict[str, Stage
         "joints": joints,
         "exports": {},
     }
+
+
+def write_exports(store: ArtifactStore, runs: dict[str, StageRun], out_dir: str | Path) -> dict[str, str]:
+    """Write the export bundle's files under ``out_dir/export`` and the diagnosis report as
+    ``out_dir/diagnosis.html``; return ``{path relative to out_dir: written path}``.
+
+    Files are written to a staging folder that replaces ``export/`` in one rename, so an
+    interrupted run leaves the previous export whole.
+    """
+    written: dict[str, str] = {}
+    for run in runs.values():
+        if run.kind == DiagnosisReport.kind:
+            html = store.get(run.key, DiagnosisReport).html
+            if html:
+                Path(out_dir).mkdir(parents=True, exist_ok=True)
+                target = Path(out_dir) / "diagnosis.html"
+                tmp = target.with_name(f".diagnosis.html.{os.getpid()}.tmp")
+                tmp.write_text(html)
+                os.replace(tmp, target)
+                written["diagnosis.html"] = str(target)
+    runs_export = [r for r in runs.values() if r.kind == ExportBundle.kind]
+    if not runs_export:
+        return written
+    bundle = store.get(runs_export[0].key, ExportBundle)
+    out = Path(out_dir)
+    out.mkdir(parents=True, exist_ok=True)
+    final = out / "export"
+    staging = out / f".export.{os.getpid()}.tmp"
+    old = out / f".export.{os.getpid()}.old"
+    for leftover in (staging, old):
+        if leftover.exists():
+            shutil.rmtree(leftover)
+    bundle.write_files(staging)
+    if final.exists():
+        os.replace(final, old)
+    os.replace(staging, final)
+    if old.exists():
+        shutil.rmtree(old)
+    return written | {f"export/{p}": str(final / p) for p in bundle.paths}
 
 
 def write_summary(summary: dict[str, Any], out_dir: str | Path) -> Path:

@@ -13,7 +13,7 @@ from prefect.tasks import exponential_backoff
 
 from artitwin_core import InputError, TransientError
 from flows._env import default_store_url
-from flows._pipeline import build_summary, scene_pipeline, write_summary
+from flows._pipeline import build_summary, scene_pipeline, write_exports, write_summary
 from flows._runner import StageRun, run_stage
 from infra.store import ArtifactStore, StoreError
 from schemas import PipelineConfig, StageConfig, StageReport
@@ -99,21 +99,30 @@ def reconstruct_scene(
     ex = PrefectExecutor(store_url)
     handles = scene_pipeline(scene, config, ex)
     runs = {name: ex.result(h) for name, h in handles.items()}
-    summary = build_summary(scene, ArtifactStore(store_url), runs, started)
+    st = ArtifactStore(store_url)
+    summary = build_summary(scene, st, runs, started)
     if out:
+        summary["exports"] = write_exports(st, runs, out)
         write_summary(summary, out)
     return summary
 
 
-def run_scene_inline(scene: str | Path, config: PipelineConfig | None = None, store: str | None = None) -> dict[str, Any]:
-    """The same pipeline without Prefect (scripts, benchmarks of raw stage cost)."""
+def run_scene_inline(
+    scene: str | Path, config: PipelineConfig | None = None, store: str | None = None, out: str | Path | None = None
+) -> dict[str, Any]:
+    """The same pipeline without Prefect (scripts, benchmarks of raw stage cost); with ``out``,
+    writes the exports and ``summary.json`` there as ``reconstruct_scene`` does."""
     from flows._runner import InlineExecutor
 
     started = time.time()
     st = ArtifactStore(store or default_store_url())
     ex = InlineExecutor(st)
     runs = {name: ex.result(h) for name, h in scene_pipeline(scene, config or PipelineConfig(), ex).items()}
-    return build_summary(scene, st, runs, started)
+    summary = build_summary(scene, st, runs, started)
+    if out is not None:
+        summary["exports"] = write_exports(st, runs, out)
+        write_summary(summary, out)
+    return summary
 
 
 def stage_names() -> list[str]:

@@ -34,6 +34,14 @@ from schemas._configs import (
     RegisterConfig,
     TrackConfig,
 )
+from schemas._diagnose import (
+    DiagnoseConfig,
+    DiagnosisReport,
+    EffectFinding,
+    PredictViewsConfig,
+    ViewPrediction,
+)
+from schemas._export import ExportBundle, ExportConfig, ExportFile
 from schemas._reconstruct import PoseRefineStageConfig, ReconstructConfig
 
 __all__ = [
@@ -43,11 +51,18 @@ __all__ = [
     "CameraPoses",
     "CaptureArtifact",
     "CaptureCheckConfig",
+    "DiagnoseConfig",
+    "DiagnosisReport",
+    "EffectFinding",
+    "ExportBundle",
+    "ExportConfig",
+    "ExportFile",
     "GaussianCheckpoint",
     "IngestConfig",
     "JointConfig",
     "PartMasksConfig",
     "PoseRefineStageConfig",
+    "PredictViewsConfig",
     "ReconstructConfig",
     "RegisterConfig",
     "TrackConfig",
@@ -61,6 +76,7 @@ __all__ = [
     "StageConfig",
     "StageReport",
     "TrajectoriesArtifact",
+    "ViewPrediction",
     "all_artifact_classes",
     "artifact_class",
 ]

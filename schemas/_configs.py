@@ -5,6 +5,8 @@ from __future__ import annotations
 from pydantic import Field
 
 from schemas._base import StageConfig
+from schemas._diagnose import DiagnoseConfig, PredictViewsConfig
+from schemas._export import ExportConfig
 from schemas._reconstruct import PoseRefineStageConfig, ReconstructConfig
 
 
@@ -78,6 +80,11 @@ class PipelineConfig(StageConfig):
     part_masks: PartMasksConfig = Field(default_factory=PartMasksConfig, description="Part and hand masks.")
     track: TrackConfig = Field(default_factory=TrackConfig, description="3D point tracks on the parts.")
     fit_joints: JointConfig = Field(default_factory=JointConfig, description="Joint fitting.")
+    predict_views: PredictViewsConfig = Field(
+        default_factory=PredictViewsConfig, description="Rendering the twin at the static recording's poses."
+    )
+    diagnose: DiagnoseConfig = Field(default_factory=DiagnoseConfig, description="Model against measurement: effect ranking.")
+    export: ExportConfig = Field(default_factory=ExportConfig, description="URDF / MJCF / splat export and the simulator check.")
 
     @classmethod
     def preset(cls, name: str) -> PipelineConfig:

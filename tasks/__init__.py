@@ -6,6 +6,8 @@ holds the registered stage descriptors by name.
 
 from tasks._convert import to_artifact, to_core
 from tasks._stage import STAGES, Stage, stage
+from tasks.diagnose import diagnose_twin, predict_views
+from tasks.export import export_twin
 from tasks.ingest import check_capture, ingest_recording
 from tasks.joints import fit_joints
 from tasks.reconstruct import reconstruct_canonical, reconstruct_report, refine_capture_poses
@@ -16,9 +18,12 @@ __all__ = [
     "STAGES",
     "Stage",
     "check_capture",
+    "diagnose_twin",
+    "export_twin",
     "fit_joints",
     "ingest_recording",
     "label_parts",
+    "predict_views",
     "reconstruct_canonical",
     "reconstruct_report",
     "refine_capture_poses",

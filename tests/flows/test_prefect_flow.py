@@ -8,6 +8,7 @@ from __future__ import annotations
 import json
 from pathlib import Path
 
+import numpy as np
 import pytest
 from prefect import flow
 
@@ -67,11 +68,25 @@ def test_scene_flow_writes_summary_and_reruns_from_cache(tmp_path, tiny_scene):
     assert set(summary["stages"]) == {
         "ingest/static", "ingest/dynamic", "capture_check/static", "capture_check/dynamic", "refine_poses",
         "reconstruct", "reconstruct_report", "register", "part_masks", "track", "fit_joints",
+        "predict_views", "diagnose", "export",
     }
     assert all(s["status"] == "computed" for s in summary["stages"].values())
     check = summary["stages"]["capture_check/static"]["metrics"]
     assert check["frames_count"] > 0 and 0 < check["valid_depth_frac"] <= 1
     assert [j["type"] for j in summary["joints"]] == ["revolute"]  # the tiny scene's one door
+    # The tiny door's hinge: axis +-y through (0.4, 0.45, 0) in the canonical frame.
+    axis = np.asarray(summary["joints"][0]["axis"])
+    assert abs(abs(axis[1]) - 1.0) < 1 - np.cos(np.radians(5.0)), axis
+    pivot = np.asarray(summary["joints"][0]["pivot"])
+    assert np.hypot(pivot[0] - 0.4, pivot[2]) < 0.03, pivot
+    # The export bundle lands under out/export and its URDF carries that joint.
+    urdf = Path(summary["exports"]["export/twin.urdf"])
+    assert urdf.parent == out / "export" and urdf.is_file()
+    assert 'type="revolute"' in urdf.read_text()
+    assert Path(summary["exports"]["export/twin.xml"]).is_file()
+    # The diagnosis compares the twin with the static recording and says what it found.
+    assert summary["stages"]["diagnose"]["notes"], summary["stages"]["diagnose"]
+    assert "<svg" in Path(summary["exports"]["diagnosis.html"]).read_text()
     second = reconstruct_scene(str(tiny_scene), config=config, store=store, out=str(out))
     assert all(s["status"] == "cached" for s in second["stages"].values())
     assert {k: s["key"] for k, s in second["stages"].items()} == {k: s["key"] for k, s in first["stages"].items()}
