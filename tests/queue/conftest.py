@@ -8,7 +8,6 @@ seconds) and a fault-injection folder (``ARTITWIN_FAULTS``, see docs/scaling.md)
 from __future__ import annotations
 
 import dataclasses
-import shutil
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -39,20 +38,21 @@ class Cluster:
 
 @pytest.fixture(scope="session")
 def scenes(tmp_path_factory) -> dict[str, Path]:
-    """Two distinct tiny scenes (different seeds) and a bad copy of the first (truncated .r3d)."""
+    """Two distinct tiny scenes (different seeds) and a third with a truncated static .r3d.
+
+    Each scene has its own content: were beta a copy of alpha, beta's dynamic recording (intact)
+    could be ingested by beta's run first and alpha would find it cached."""
     from artitwin_core.synth import BENCHMARK_SCENES, generate_scene, write_scene
 
     root = tmp_path_factory.mktemp("scenes")
     out = {}
-    for name, seed in (("alpha", 101), ("gamma", 102)):
+    for name, seed in (("alpha", 101), ("gamma", 102), ("beta", 103)):
         spec = dataclasses.replace(BENCHMARK_SCENES["tiny"], seed=seed)
         write_scene(generate_scene(spec), root / name)
         out[name] = root / name
-    bad = root / "beta"
-    shutil.copytree(out["alpha"], bad)
+    bad = out["beta"]
     data = (bad / "static.r3d").read_bytes()
     (bad / "static.r3d").write_bytes(data[: len(data) // 3])  # a copy interrupted a third of the way
-    out["beta"] = bad
     return out
 
 
