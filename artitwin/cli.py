@@ -132,6 +132,24 @@ def demo(
 
 
 @app.command()
+def view(
+    path: Annotated[Path, typer.Argument(help="Run folder (artitwin run --out DIR), its summary.json, a scene folder run into ./out, or a 3DGS .ply.")],
+    port: Annotated[int, typer.Option("--port", help="Port on 127.0.0.1 (the next free one if it is taken).")] = 8080,
+    joints: Annotated[Path | None, typer.Option("--joints", help="Joints JSON for a .ply (a summary.json works).")] = None,
+    labels: Annotated[Path | None, typer.Option("--labels", help="Part labels .npy [N] for a .ply (0 background, 1 interior, 2+k part k).")] = None,
+    residual: Annotated[Path | None, typer.Option("--residual", help="Residual .npy: [N] per Gaussian, or [M, 4] rows x, y, z, value.")] = None,
+    export_dir: Annotated[Path | None, typer.Option("--export", help="Export folder whose collision meshes to show (default: the run's).")] = None,
+) -> None:
+    """Open the twin in the browser: a slider per joint, joint axes, capture cameras, residuals, collision meshes."""
+    from artitwin._viewer import view as serve
+
+    try:
+        serve(path, port=port, joints=joints, labels=labels, residual=residual, export_dir=export_dir, echo=console.print)
+    except ArtiTwinError as e:
+        _fail(str(e))
+
+
+@app.command()
 def synth(
     name: Annotated[str, typer.Argument(help="Benchmark scene name (see --list).")] = "tiny",
     out: Annotated[Path, typer.Option("--out", help="Scene folder to write.")] = Path("scenes/tiny"),
