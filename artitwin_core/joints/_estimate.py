@@ -74,7 +74,15 @@ class JointFitConfig:
         tolerance: stop when the relative change of the weighted cost is below this.
         screw_bic_margin: BIC units by which the screw must beat the revolute (10 = "very
             strong" evidence in Kass and Raftery's scale).
-        min_screw_travel_m: the screw's axial travel over the observed range must exceed this.
+        min_screw_travel_m: the screw's axial travel over the observed range must exceed this
+            (the pipeline's tracks of the non-screw "door" scene drift 7 mm along the hinge,
+            linearly with q, over 1 rad: a trend no frame-level test can tell from a pitch).
+        screw_min_pitch_t: the screw's pitch must stand this many standard errors above zero
+            when the frames' axial displacements are regressed on their states (frames, not
+            points, are the independent samples: see ``_pitch_significance``).
+        min_rotation_rad: a revolute or screw fit must turn the part by at least this much over
+            the recording, else it is not considered (a near-zero rotation about a far axis is a
+            translation).
         min_motion_m: below this RMS displacement of the part's points, the joint is "fixed".
         noise_floor_m: lower bound on the noise estimate (keeps the BIC finite on clean data).
         q_tolerance_rad: standard error of a revolute ``q`` at which confidence is 0.5.
@@ -96,7 +104,9 @@ class JointFitConfig:
     max_pivot_distance_m: float = 10.0
     tolerance: float = 1e-8
     screw_bic_margin: float = 10.0
-    min_screw_travel_m: float = 0.005
+    min_screw_travel_m: float = 0.015
+    screw_min_pitch_t: float = 5.0
+    min_rotation_rad: float = 0.05
     min_motion_m: float = 0.002
     noise_floor_m: float = 1e-5
     q_tolerance_rad: float = float(np.deg2rad(0.5))
@@ -629,6 +639,52 @@ def _validate(traj: Trajectories, reference_frame: int) -> tuple[np.ndarray, np.
     return pts, valid
 
 
+def _rotation_plausible(joint: Joint, cfg: JointFitConfig) -> bool:
+    """A rotational fit is a rotation, not a translation in disguise: it turns the part by at
+    least ``min_rotation_rad`` over the recording (a drawer's tracking errors that grow as it
+    slides out are fitted best by a rotation of a few milliradians about an axis tens of metres
+    away, which wins the BIC against the translation by the two parameters it adds)."""
+    span = float(joint.q_range[1] - joint.q_range[0])
+    return span >= cfg.min_rotation_rad
+
+
+def _pitch_significance(
+    screw: Joint, rots: np.ndarray, trans: np.ndarray, has: np.ndarray, centroid: np.ndarray
+) -> float:
+    """t statistic of the screw's pitch against the frames' own axial scatter.
+
+    A single rigid motion is always a screw (Chasles), and per-point BIC counts every track of
+    a frame as independent evidence, while tracking errors are shared by the tracks of a frame
+    (a slid homography, a depth bias). The frames are the independent samples: each frame's
+    rigid motion moves the part by ``d_t`` along the axis, and a screw needs ``d_t`` to grow linearly with ``q_t``.
+    ``d_t`` is taken at the part's centroid, where an error of the axis direction leaks least
+    of the rotation into it; frames whose motion rests on few tracks (``has`` False) are left out.
+    Regressing ``d_t = c + pitch q_t`` over the frames, the slope's standard error comes from
+    the scatter of the frames about the line, so drift that does not follow ``q`` (frames at
+    the same ``q`` with different ``d``) weakens the evidence. Fewer than 4 frames, or fewer
+    than 3 distinct states, give 0 (not identifiable).
+    """
+    q = screw.q
+    use = has & np.isfinite(q)
+    if use.sum() < 4:
+        return 0.0
+    qs = q[use]
+    d = (np.einsum("tij,j->ti", rots[use], centroid) + trans[use] - centroid) @ screw.axis
+    # Distinct states: at least 3 clusters apart by 5% of the observed range.
+    span = float(qs.max() - qs.min())
+    levels = np.unique(np.round(qs / max(0.05 * span, 1e-9)))
+    if span <= 0 or levels.size < 3:
+        return 0.0
+    a = np.stack([np.ones_like(qs), qs], -1)
+    coef, *_ = np.linalg.lstsq(a, d, rcond=None)
+    res = d - a @ coef
+    dof = qs.size - 2
+    s2 = float(res @ res) / dof
+    cov = s2 * np.linalg.inv(a.T @ a)
+    se = float(np.sqrt(max(cov[1, 1], 1e-30)))
+    return float(abs(coef[1]) / se)
+
+
 def estimate_joint(
     traj: Trajectories, config: JointFitConfig | None = None, *, reference_frame: int = 0
 ) -> JointFit:
@@ -743,13 +799,19 @@ def estimate_joint(
         )
 
     # 3. Model selection.
-    best = min(("prismatic", "revolute"), key=lambda k: hyps[k].bic)
+    moving = [k for k in ("prismatic", "revolute") if k == "prismatic" or _rotation_plausible(finals[k][1], cfg)]
+    best = min(moving, key=lambda k: hyps[k].bic)
     screw = finals["screw"][1]
     travel = abs(screw.pitch) * float(screw.q_range[1] - screw.q_range[0])
+    support = ransac_in.sum(1)
+    strong = has & (support >= max(10.0, 0.2 * float(np.median(support[has]))))
+    pitch_t = _pitch_significance(screw, rots, trans, strong, centroid)
     if (
         hyps["screw"].bic + cfg.screw_bic_margin < hyps["revolute"].bic
         and hyps["screw"].bic < hyps["prismatic"].bic
         and travel >= cfg.min_screw_travel_m
+        and pitch_t >= cfg.screw_min_pitch_t
+        and _rotation_plausible(screw, cfg)
     ):
         best = "screw"
     fit_b, joint_b, points_b = finals[best]

@@ -47,6 +47,7 @@ class FlowParams:
     ncc_min: float
     reacquire: bool
     reacquire_ncc_min: float
+    model_max_shift_px: float = 4.0
 
 
 def to_gray(rgb: np.ndarray, reference: int | None) -> np.ndarray:
@@ -266,6 +267,7 @@ def track_points_2d(
     params: FlowParams,
     query_region: np.ndarray | None = None,
     align_allowed: Callable[[int], np.ndarray] | None = None,
+    model_homographies: np.ndarray | None = None,
 ) -> np.ndarray:
     """Track query points through every frame.
 
@@ -282,6 +284,9 @@ def track_points_2d(
         align_allowed: ``t -> [H, W] bool``, where the dense aligner may use pixels in frame
             ``t`` (planar mode; default ``allowed``): wider than ``allowed`` when the masks stop
             short of the part's outline, whose gradients pin the warp.
+        model_homographies: ``[T, 3, 3]`` query-to-frame homographies predicted by the
+            model-based 3D tracker (NaN where it did not align): planar mode starts the dense
+            warp there, and vouches for it, where the chained LK fails (fast motion).
 
     Returns:
         ``[T, N, 2]`` float64 pixel positions, NaN where the track is lost.
@@ -296,7 +301,7 @@ def track_points_2d(
     for step in (1, -1):
         if aligner is not None:
             _track_planar(gray, allowed, align_allowed or allowed, query_frame, pts_q, params, aligner, pix, step,
-                          radius)
+                          radius, model_homographies)
             continue
         on_plane = np.ones(n, bool)  # homography inlier when last seen (re-acquisition needs it)
         t = query_frame
@@ -358,7 +363,8 @@ def _chain_step(params, img0, img1, pos0, guess):
     return idx[ok], p1[ok]
 
 
-def _track_planar(gray, allowed, align_allowed, query_frame, pts_q, params, aligner, pix, step, radius) -> None:
+def _track_planar(gray, allowed, align_allowed, query_frame, pts_q, params, aligner, pix, step, radius,
+                  model_h=None) -> None:
     """Planar mode, one direction (``step`` = +1 or -1), filling ``pix`` in place.
 
     The dense homography places every point; the chained LK only initialises it (RANSAC) and
@@ -385,6 +391,14 @@ def _track_planar(gray, allowed, align_allowed, query_frame, pts_q, params, alig
         h0, _ = _fit_homography(params, pts_q[idx_ok], p1)
         init = h0 if h0 is not None else h_pred
         h, _ = _dense_warp(params, aligner, gray[s], align_allowed(s), init, pts_q, idx_ok, p1)
+        if h is None and model_h is not None and np.all(np.isfinite(model_h[s])):
+            # The chain lost the part (a door swung fast): the 3D model's alignment starts the
+            # dense warp and vouches for it in the chain's place.
+            hm = model_h[s]
+            h, used = aligner.refine(gray[s], align_allowed(s), hm)
+            shift = np.linalg.norm(_apply_h(h, pts_q) - _apply_h(hm, pts_q), axis=1)
+            if used < 0.25 or not np.median(shift) < params.model_max_shift_px:
+                h = None
         if h is None:
             return
         h_old, h_cur = h_cur, h

@@ -4,7 +4,10 @@
 (corners first, a grid where the part has little texture), tracks them through every frame with
 ``_flow.track_points_2d``, lifts each tracked pixel with the frame's depth and pose, and removes
 3D samples that cannot be trusted (depth edges, low confidence, jumps faster than a hand moves a
-part, tracks that are too short). Whether a track is rigid with the rest of the part is left to
+part, tracks that are too short). A model-based 3D tracker (``_model_track``) aligns the part's
+query-frame surface to every frame; it restarts the planar tracker's dense warp where chained LK
+loses a fast-moving face and places the query points in frames the 2D tracker did not reach.
+Whether a track is rigid with the rest of the part is left to
 the joint estimator's RANSAC: filtering it here would only duplicate that work with less context.
 """
 
@@ -19,6 +22,7 @@ from artitwin_core.masks import MaskSequence
 from artitwin_core.tracking._config import TrackingConfig
 from artitwin_core.tracking._flow import FlowParams, to_gray, track_points_2d
 from artitwin_core.tracking._lift import lift_pixels
+from artitwin_core.tracking._model_track import RigidParams, track_rigid
 from artitwin_core.tracking._types import Trajectories
 
 
@@ -151,6 +155,75 @@ def _reject_jumps(points: np.ndarray, valid: np.ndarray, times: np.ndarray, q: i
             t += step
 
 
+def _project(points: np.ndarray, world_from_camera: np.ndarray, intrinsics: np.ndarray, distortion) -> np.ndarray:
+    """RGB pixels ``[N, 2]`` of world points ``[N, 3]`` (NaN behind the camera)."""
+    cam_from_world = np.linalg.inv(world_from_camera)
+    pc = points @ cam_from_world[:3, :3].T + cam_from_world[:3, 3]
+    fx, fy, cx, cy = (float(v) for v in intrinsics)
+    out = np.full((points.shape[0], 2), np.nan)
+    front = pc[:, 2] > 1e-6
+    if not front.any():
+        return out
+    if distortion is None:
+        out[front] = np.stack([fx * pc[front, 0] / pc[front, 2] + cx, fy * pc[front, 1] / pc[front, 2] + cy], -1)
+        return out
+    k = np.array([[fx, 0.0, cx], [0.0, fy, cy], [0.0, 0.0, 1.0]])
+    uv, _ = cv2.projectPoints(pc[front], np.zeros(3), np.zeros(3), k, np.asarray(distortion, np.float64))
+    out[front] = uv.reshape(-1, 2)
+    return out
+
+
+def _model_homographies(model, q, query, points_q, poses, capture) -> np.ndarray:
+    """``[T, 3, 3]`` query-to-frame homographies of the query points moved by the model's
+    motions (least squares over the points; NaN where the model did not align)."""
+    t_count = model.motions.shape[0]
+    out = np.full((t_count, 3, 3), np.nan)
+    for t in range(t_count):
+        if not model.confident[t] or query.shape[0] < 8:
+            continue
+        m = model.motions[t]
+        uv = _project(points_q @ m[:3, :3].T + m[:3, 3], poses[t], capture.rgb_intrinsics[t], capture.distortion)
+        ok = np.all(np.isfinite(uv), axis=1)
+        if ok.sum() < 8:
+            continue
+        h, _ = cv2.findHomography(query[ok], uv[ok], 0)
+        if h is not None and np.all(np.isfinite(h)):
+            out[t] = h
+    return out
+
+
+def _fill_from_model(res, q, points_q, pix, points, valid, allowed, lift, capture, poses, cfg) -> None:
+    """Tracks in frames where the model-based tracker aligned the part (in place).
+
+    Where the model is confident, a query point moved by the frame's rigid motion gives its
+    pixel; its 3D sample is the frame's depth at that pixel (measured, like any track), kept
+    only when it lies within ``model_depth_gate_m`` of the moved point (else the point is
+    occluded or off the surface). A 2D track that disagrees with the model by more than the
+    gate is replaced: the dense homography chain slides when the face turns away.
+    """
+    t_count = pix.shape[0]
+    for t in range(t_count):
+        if not res.confident[t] or t == q:
+            continue
+        m = res.motions[t]
+        moved = points_q @ m[:3, :3].T + m[:3, 3]
+        uv = _project(moved, poses[t], capture.rgb_intrinsics[t], capture.distortion)
+        allowed_t = allowed(t)
+        h_img, w_img = allowed_t.shape
+        inside = np.all(np.isfinite(uv), 1) & (uv[:, 0] >= 0) & (uv[:, 0] <= w_img - 1) & (uv[:, 1] >= 0) & (uv[:, 1] <= h_img - 1)
+        ij = np.rint(np.where(inside[:, None], uv, 0)).astype(np.int64)
+        inside &= allowed_t[ij[:, 1], ij[:, 0]]
+        p, ok = lift(t, np.where(inside[:, None], uv, np.nan))
+        ok &= inside & (np.linalg.norm(p - moved, axis=1) < cfg.model_depth_gate_m)
+        disagree = valid[t] & (np.linalg.norm(np.nan_to_num(points[t]) - moved, axis=1) >= cfg.model_depth_gate_m)
+        fill = ok & (~valid[t] | disagree)
+        pix[t, fill] = uv[fill]
+        points[t, fill] = p[fill]
+        valid[t, fill] = True
+        drop = disagree & ~fill
+        valid[t, drop] = False
+
+
 def track_part_points(
     capture: Capture,
     part_masks: np.ndarray | MaskSequence,
@@ -232,7 +305,7 @@ def track_part_points(
     if plane is not None and query.shape[0]:
         on = np.abs(points_q @ plane[:3] + plane[3]) < cfg.plane_threshold_m
         if on.mean() >= cfg.min_plane_fraction:
-            query = query[on]
+            query, points_q = query[on], points_q[on]
             ys, xs = np.nonzero(align_region)
             pts_all, ok_all = lift(q, np.stack([xs, ys], -1).astype(np.float64))
             off = ok_all & (np.abs(pts_all @ plane[:3] + plane[3]) >= cfg.plane_threshold_m)
@@ -253,9 +326,24 @@ def track_part_points(
         lk_min_eigen=cfg.lk_min_eigen, fb_threshold_px=cfg.fb_threshold_px,
         homography_threshold_px=cfg.homography_threshold_px, min_homography_points=cfg.min_homography_points,
         anchor_max_shift_px=cfg.anchor_max_shift_px, ncc_min=cfg.ncc_min, reacquire=cfg.reacquire,
-        reacquire_ncc_min=cfg.reacquire_ncc_min,
+        reacquire_ncc_min=cfg.reacquire_ncc_min, model_max_shift_px=max(2.0, width / 64),
     )
-    pix = track_points_2d(gray, allowed, q, query, params, align, align_allowed) if query.shape[0] else np.zeros((t_count, 0, 2))
+    model = None
+    if cfg.model_tracking and query.shape[0]:
+        # The whole part, outline included (the outline's contrast pins motion along a
+        # directional texture, such as grain parallel to a door's hinge).
+        model_region = part[q] if hand is None else part[q] & ~hand[q]
+        model_px = np.stack(np.nonzero(model_region)[::-1], -1).astype(np.float64)
+        model_pts, model_ok = lift(q, model_px)
+        model = track_rigid(
+            gray, capture.depth, poses, capture.rgb_intrinsics, capture.depth_intrinsics, allowed, q,
+            model_pts[model_ok], RigidParams(max_model_points=cfg.model_points),
+        )
+    model_h = None if model is None or align is None else _model_homographies(model, q, query, points_q, poses, capture)
+    pix = (
+        track_points_2d(gray, allowed, q, query, params, align, align_allowed, model_h)
+        if query.shape[0] else np.zeros((t_count, 0, 2))
+    )
 
     n = pix.shape[1]
     points = np.full((t_count, n, 3), np.nan)
@@ -266,6 +354,8 @@ def track_part_points(
             p, ok = lift(t, pix[t, tracked])
             points[t, tracked] = p
             valid[t, tracked] = ok
+    if model is not None and n:
+        _fill_from_model(model, q, points_q, pix, points, valid, allowed, lift, capture, poses, cfg)
     times = np.asarray(capture.timestamps, dtype=np.float64)
     if times.shape != (t_count,) or not np.all(np.isfinite(times)):
         times = np.arange(t_count, dtype=np.float64) / 30.0

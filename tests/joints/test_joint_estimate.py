@@ -14,6 +14,7 @@ from artitwin_core import InputError
 from artitwin_core.joints import (
     Joint,
     JointFitConfig,
+    axis_angle_error_deg,
     estimate_joint,
     joint_errors,
     joint_transforms,
@@ -244,3 +245,58 @@ def test_screw_needs_real_axial_travel():
     assert fit.joint.joint_type == "revolute", [(h.joint_type, h.bic) for h in fit.hypotheses]
     traj, _ = simulate_trajectories(truth, pts, rng, noise_m=0.002, outlier_fraction=0.15)
     assert travel > 0.01 and estimate_joint(traj).joint.joint_type == "screw"
+
+
+def _with_frame_errors(traj: Trajectories, axis: np.ndarray, offsets_m: np.ndarray) -> Trajectories:
+    """Every track of frame t shifted by ``offsets_m[t]`` along ``axis``: an error shared by the
+    tracks of a frame (a slid homography, a depth bias), which per-point BIC counts N times."""
+    pts = traj.points_in_world + offsets_m[:, None, None] * axis[None, None, :]
+    return Trajectories(pts, traj.pixels, traj.valid, traj.query_frame)
+
+
+def test_frame_level_axial_drift_is_not_a_screw():
+    rng = np.random.default_rng(21)
+    truth, pts = random_part_joint("revolute", N_TRACKS, N_FRAMES, rng)
+    traj, _ = simulate_trajectories(truth, pts, rng, noise_m=0.001)
+    # Axial drift as a random walk of 1.5 mm steps (as the tracker's on "tiny"): it grows with
+    # time, so partly with q, but scatters about any line through it.
+    offsets = np.concatenate([[0.0], np.cumsum(rng.normal(0.0, 0.0015, N_FRAMES - 1))])
+    fit = estimate_joint(_with_frame_errors(traj, truth.axis, offsets))
+    # Per-point BIC alone prefers the screw here (it fits a pitch to the scatter) ...
+    assert fit.score("screw").bic + 10.0 < fit.score("revolute").bic
+    # ... but the pitch is not significant against the frames' scatter: revolute.
+    assert fit.joint.joint_type == "revolute"
+    assert axis_angle_error_deg(fit.joint.axis, truth.axis) < 1.0
+
+
+def test_screw_is_kept_under_frame_level_axial_scatter():
+    rng = np.random.default_rng(22)
+    truth, pts = random_part_joint("screw", N_TRACKS, N_FRAMES, rng)
+    travel = abs(truth.pitch) * np.ptp(truth.q)
+    traj, _ = simulate_trajectories(truth, pts, rng, noise_m=0.001)
+    offsets = rng.normal(0.0, 0.003, N_FRAMES)
+    offsets[0] = 0.0
+    fit = estimate_joint(_with_frame_errors(traj, truth.axis, offsets))
+    assert travel > 0.02  # measured 0.0xx m: well above the 3 mm scatter
+    assert fit.joint.joint_type == "screw", [(h.joint_type, h.bic) for h in fit.hypotheses]
+    # The pitch is signed along the axis, so flipping the axis (and q) keeps it.
+    assert abs(fit.joint.pitch - truth.pitch) < 0.1 * abs(truth.pitch)  # measured 0.4 %
+
+
+def test_translation_with_a_sliver_of_rotation_is_prismatic():
+    """A drawer whose tracks pick up a milliradian of spurious rotation as it slides out: the
+    revolute fit (an axis tens of metres away) may win the BIC, but it does not turn the part."""
+    rng = np.random.default_rng(23)
+    truth, pts = random_part_joint("prismatic", N_TRACKS, N_FRAMES, rng)
+    traj, _ = simulate_trajectories(truth, pts, rng, noise_m=0.001)
+    centre = pts.mean(0)
+    side = np.cross(truth.axis, [0.0, 0.0, 1.0])
+    side /= np.linalg.norm(side)
+    p = traj.points_in_world.copy()
+    for t in range(N_FRAMES):
+        ang = 0.004 * truth.q[t] / truth.q.max()
+        m = joint_transforms("revolute", side, centre + truth.q[t] * truth.axis, np.array([ang]))[0]
+        p[t] = p[t] @ m[:3, :3].T + m[:3, 3]
+    fit = estimate_joint(Trajectories(p, traj.pixels, traj.valid, traj.query_frame))
+    assert fit.joint.joint_type == "prismatic"
+    assert axis_angle_error_deg(fit.joint.axis, truth.axis) < 1.0

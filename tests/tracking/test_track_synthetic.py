@@ -99,12 +99,17 @@ def test_tracks_cover_the_visible_part_and_stay_off_the_hand(scene, tracked):
 def test_tracks_feed_the_joint_estimator(scene, tracked):
     # The closed frame (q = 0 in the truth) is the reference, as the pipeline uses it.
     fit = estimate_joint(tracked, reference_frame=0)
-    errors = joint_errors(fit.joint, scene.truth.joints[0])
-    # Measured 0.80 deg (noisy) / 0.44 deg (clean). The type comes out "screw" on this scene (the
-    # revolute is chosen when fed the true 3D points): left to the estimator's model selection.
-    assert errors.axis_angle_deg < 1.0
-    assert fit.joint.joint_type in ("revolute", "screw")
-    assert errors.pivot_to_line_m < 0.01  # measured 1.7 / 0.5 mm
+    truth = scene.truth.joints[0]
+    errors = joint_errors(fit.joint, truth)
+    # The screw's pitch is not significant against the frames' axial scatter: revolute.
+    assert fit.joint.joint_type == "revolute"
+    # Measured 1.19 deg (noisy) / 0.79 deg (clean): the model-based tracker follows the door to
+    # q = 1.06 rad, where the face is foreshortened and the tracks are less precise.
+    assert errors.axis_angle_deg < 2.0
+    assert errors.pivot_to_line_m < 0.01  # measured 4.0 / 2.6 mm
+    # The front is seen until frame 8 (true q 1.06 rad); frames 9-11 show the door's back.
+    assert fit.joint.q_range[1] > 1.0  # measured 1.058 / 1.060 rad
+    assert fit.joint.q_range[1] < truth.q.max() + 0.05
 
 
 def test_plain_part_labels_without_hand_mask(scene):

@@ -1,0 +1,134 @@
+"""End-to-end joint benchmark: register -> part masks -> 3D tracks -> joint fit, against ground truth.
+
+Unlike ``bench_tracking.py`` (true masks and registration), every stage here is the pipeline's
+own: ``register_recordings``, ``segment_parts`` on the canonical TSDF, ``track_part_points`` and
+``estimate_joint`` with the reference frame at frame 0 (as ``fit_joints`` uses by default).
+Segmented parts are matched to true parts by mask overlap. Per part: type correct, axis error
+(deg), pivot-line distance (mm, rotational joints), range error and state RMSE (deg or mm),
+median 3D track error (mm, each track's query-frame point moved by the true part motion), the
+true state reached by the last frame with tracks, and the seconds of the track and fit stages.
+
+Run: ``python bench/bench_pipeline_joints.py [--scenes door drawer ...]``; prints a table and
+writes ``bench/results/pipeline_joints.json``.
+"""
+
+from __future__ import annotations
+
+import argparse
+import sys
+import time
+from pathlib import Path
+
+import cv2
+import numpy as np
+
+sys.path.insert(0, str(Path(__file__).resolve().parent))
+
+from _common import print_table, write_results  # noqa: E402
+
+from artitwin_core.change import PartConfig, build_canonical_tsdf, segment_parts  # noqa: E402
+from artitwin_core.joints import JointFitConfig, estimate_joint, joint_errors  # noqa: E402
+from artitwin_core.registration import RegistrationConfig, register_recordings  # noqa: E402
+from artitwin_core.synth import BENCHMARK_SCENES, generate_scene  # noqa: E402
+from artitwin_core.tracking import TrackingConfig, track_part_points  # noqa: E402
+
+DEFAULT_SCENES = ["tiny", "door", "drawer", "door+drawer", "low-texture-door", "strong-hand-occlusion",
+                  "non-ideal-joints"]
+GRAVITY = (0.0, -1.0, 0.0)
+
+
+def _track_error_mm(traj, part_world_from_closed: np.ndarray) -> float:
+    """Median distance of valid samples to their query point moved by the true part motion."""
+    q = traj.query_frame
+    x = traj.points_in_world
+    inv_q = np.linalg.inv(part_world_from_closed[q])
+    closed = x[q] @ inv_q[:3, :3].T + inv_q[:3, 3]
+    errs = []
+    for t in range(x.shape[0]):
+        v = traj.valid[t]
+        if v.any():
+            pred = closed[v] @ part_world_from_closed[t][:3, :3].T + part_world_from_closed[t][:3, 3]
+            errs.append(np.linalg.norm(pred - x[t, v], axis=1))
+    return 1e3 * float(np.median(np.concatenate(errs))) if errs else float("nan")
+
+
+def bench_scene(name: str) -> list[dict]:
+    scene = generate_scene(BENCHMARK_SCENES[name])
+    s, d, truth = scene.static, scene.dynamic, scene.truth
+    t0 = time.perf_counter()
+    reg = register_recordings(s, d, gravity=GRAVITY, config=RegistrationConfig())
+    canonical = build_canonical_tsdf(s, world_from_camera=truth.static_world_from_camera)
+    seg = segment_parts(d, reg.canonical_from_session, canonical, gravity=GRAVITY, config=PartConfig())
+    t_masks = time.perf_counter() - t0
+    rows = []
+    labels = [int(v) for v in np.unique(seg.masks.part) if v > 0]
+    for k, joint_true in enumerate(truth.joints):
+        row = {"scene": name, "part": k, "joint_true": joint_true.joint_type, "frames": d.num_frames,
+               "register_masks_s": t_masks}
+        true_mask = truth.part_masks == k + 1
+        overlap = [np.logical_and(seg.masks.part == lab, true_mask).sum() for lab in labels]
+        if not labels or max(overlap) == 0:
+            row["joint_est"] = "no part mask"
+            rows.append(row)
+            continue
+        label = labels[int(np.argmax(overlap))]
+        t0 = time.perf_counter()
+        traj = track_part_points(d, seg.masks, reg.canonical_from_session, part_label=label, config=TrackingConfig())
+        row["track_s"] = time.perf_counter() - t0
+        n_valid = traj.valid.sum(1)
+        covered = np.nonzero(n_valid >= 3)[0]
+        q_abs = np.abs(joint_true.q)
+        row["tracks"] = int(traj.valid.shape[1])
+        row["q_reached"] = float(q_abs[covered].max() / q_abs.max()) if covered.size and q_abs.max() > 0 else 0.0
+        row["track_err_mm"] = _track_error_mm(traj, truth.part_world_from_closed[k])
+        ref = 0 if n_valid[0] >= 3 else (int(covered[0]) if covered.size else 0)
+        t0 = time.perf_counter()
+        try:
+            fit = estimate_joint(traj, JointFitConfig(), reference_frame=ref)
+        except Exception as exc:  # noqa: BLE001 - a benchmark row records the failure
+            row["joint_est"] = f"failed: {exc}"[:60]
+            rows.append(row)
+            continue
+        row["fit_s"] = time.perf_counter() - t0
+        j = fit.joint
+        e = joint_errors(j, joint_true)
+        rotational = joint_true.joint_type in ("revolute", "screw")
+        scale = np.degrees(1.0) if rotational else 1e3
+        q_err = (j.q - (joint_true.q - joint_true.q[ref])) * scale
+        true_range = float(q_abs.max()) * scale
+        est_range = float(j.q_range[1] - j.q_range[0]) * scale
+        row.update(
+            joint_est=j.joint_type,
+            type_ok=bool(e.type_correct),
+            axis_deg=e.axis_angle_deg,
+            pivot_mm=1e3 * e.pivot_to_line_m if rotational else float("nan"),
+            range_true=true_range,
+            range_est=est_range,
+            range_err=est_range - true_range,
+            state_rmse=float(np.sqrt(np.nanmean(q_err**2))),
+            unit="deg" if rotational else "mm",
+        )
+        rows.append(row)
+    return rows
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--scenes", nargs="*", default=DEFAULT_SCENES)
+    args = parser.parse_args()
+    cv2.setNumThreads(2)
+    rows = []
+    for name in args.scenes:
+        rows.extend(bench_scene(name))
+        print(f"{name}: done", flush=True)
+    columns = ["scene", "part", "joint_true", "joint_est", "type_ok", "axis_deg", "pivot_mm", "range_true",
+               "range_est", "range_err", "state_rmse", "unit", "q_reached", "tracks", "track_err_mm",
+               "register_masks_s", "track_s", "fit_s"]
+    print("\nPipeline: register_recordings -> segment_parts -> track_part_points -> estimate_joint (ref frame 0)")
+    print_table(rows, columns)
+    path = write_results("pipeline_joints", rows, {"tracking": repr(TrackingConfig()), "joints": repr(JointFitConfig())})
+    print(f"\nwrote {path}")
+
+
+if __name__ == "__main__":
+    main()

@@ -1,0 +1,52 @@
+"""The model-based rigid tracker on the "tiny" scene: the door's query-frame surface aligned to
+every frame, against the part's true motion (ground-truth masks and registration)."""
+
+from __future__ import annotations
+
+import cv2
+import numpy as np
+import pytest
+
+from artitwin_core.synth import BENCHMARK_SCENES, generate_scene
+from artitwin_core.tracking._flow import to_gray
+from artitwin_core.tracking._lift import lift_pixels
+from artitwin_core.tracking._model_track import RigidParams, track_rigid
+
+
+@pytest.fixture(scope="module")
+def tiny():
+    return generate_scene(BENCHMARK_SCENES["tiny"])
+
+
+def test_model_follows_the_door_through_fast_frames(tiny):
+    d, truth = tiny.dynamic, tiny.truth
+    poses = truth.canonical_from_dynamic_session @ d.world_from_camera
+    part, hand = truth.part_masks == 1, truth.hand_masks
+    q = 0
+
+    def allowed(t):
+        m = cv2.dilate(part[t].astype(np.uint8), np.ones((3, 3), np.uint8)).astype(bool)
+        return m & ~cv2.dilate(hand[t].astype(np.uint8), np.ones((5, 5), np.uint8)).astype(bool)
+
+    ys, xs = np.nonzero(part[q] & ~hand[q])
+    pts, ok = lift_pixels(np.stack([xs, ys], -1).astype(float), d.depth[q], d.confidence[q] if d.confidence is not None
+                          else None, d.rgb_intrinsics[q], d.depth_intrinsics[q], poses[q])
+    res = track_rigid(to_gray(d.rgb, q), d.depth, poses, d.rgb_intrinsics, d.depth_intrinsics, allowed, q, pts[ok],
+                      RigidParams())
+    motion_true = truth.part_world_from_closed[0]
+    x = pts[ok]
+    errs = {}
+    for t in np.nonzero(res.confident)[0]:
+        g = motion_true[t] @ np.linalg.inv(motion_true[q])
+        m = res.motions[t]
+        errs[int(t)] = np.median(np.linalg.norm((x @ m[:3, :3].T + m[:3, 3]) - (x @ g[:3, :3].T + g[:3, 3]), axis=1))
+    q_true = truth.joints[0].q
+    # The door swings 0.28-0.31 rad between frames 5, 6 and 7; the chained 2D tracker stops at
+    # frame 5. Measured: confident through frame 7 (true q 0.81 rad); frame 8 on shows the door's
+    # back, which the front's model cannot align.
+    assert max(q_true[t] for t in errs) > 0.75
+    assert not res.confident[9:].any()
+    # Measured median point error <= 1.1 mm for frames 1-5, 4.5 mm at 6, 12.1 mm at frame 7 (face nearly
+    # edge-on, 128x96 pixels).
+    assert max(errs[t] for t in errs if q_true[t] < 0.4) < 0.003
+    assert max(errs.values()) < 0.02
