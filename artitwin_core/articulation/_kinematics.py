@@ -1,0 +1,142 @@
+"""Articulated poses: where each part is at joint state q, and the twin rendered there.
+
+A part's motion is the joint's one-parameter subgroup of SE(3) (``artitwin_core.joints``):
+rotation about the axis line through the pivot (revolute), translation along the axis
+(prismatic), or both with ``pitch`` metres per radian (screw). Gaussians labelled
+``LABEL_PART + k`` move rigidly with joint k: centres by ``R x + t`` and rotations by
+``q_R * q``; background and interior Gaussians stay. Spherical-harmonic coefficients are not
+rotated (view-dependent colour of a moved part is evaluated in the canonical orientation).
+"""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+
+import numpy as np
+import torch
+
+from artitwin_core._errors import InputError
+from artitwin_core.gaussians import LABEL_PART, GaussianParams
+from artitwin_core.geometry import matrix_to_quat_wxyz
+from artitwin_core.joints import Joint, joint_transforms
+from artitwin_core.reconstruction import render_view
+
+
+def world_from_part(joint: Joint, q: float | np.ndarray) -> np.ndarray:
+    """``[4, 4]`` (or ``[T, 4, 4]`` for ``q [T]``) float64 motion of the part at state ``q``.
+
+    Maps a point of the part in the closed (canonical, ``q = 0``) state to its position at
+    ``q`` (radians for revolute and screw, metres for prismatic).
+    """
+    qa = np.asarray(q, dtype=np.float64)
+    out = joint_transforms(joint.joint_type, joint.axis, joint.pivot, np.atleast_1d(qa), joint.pitch)
+    return out[0] if qa.ndim == 0 else out
+
+
+def part_motions(joints: Sequence[Joint], q_per_joint: Sequence[float]) -> np.ndarray:
+    """``[K, 4, 4]`` float64 ``world_from_part`` of every joint at its state."""
+    q = np.asarray(q_per_joint, dtype=np.float64).reshape(-1)
+    if len(q) != len(joints):
+        raise InputError(
+            f"articulation: {len(q)} joint states given for {len(joints)} joints; give one per joint."
+        )
+    if not len(joints):
+        return np.zeros((0, 4, 4))
+    return np.stack([world_from_part(j, float(v)) for j, v in zip(joints, q, strict=True)])
+
+
+def quat_multiply(a: torch.Tensor, b: torch.Tensor) -> torch.Tensor:
+    """Hamilton product ``a * b`` of wxyz quaternions ``[..., 4]`` (rotation b, then a)."""
+    aw, ax, ay, az = a.unbind(-1)
+    bw, bx, by, bz = b.unbind(-1)
+    return torch.stack([
+        aw * bw - ax * bx - ay * by - az * bz,
+        aw * bx + ax * bw + ay * bz - az * by,
+        aw * by - ax * bz + ay * bw + az * bx,
+        aw * bz + ax * by - ay * bx + az * bw,
+    ], dim=-1)  # fmt: skip
+
+
+def articulate_tensors(
+    means: torch.Tensor, quats_wxyz: torch.Tensor, labels: torch.Tensor, motions: np.ndarray | torch.Tensor
+) -> tuple[torch.Tensor, torch.Tensor]:
+    """Move the part Gaussians, differentiably in ``means`` and ``quats_wxyz``.
+
+    Args:
+        means: ``[N, 3]`` canonical centres, metres.
+        quats_wxyz: ``[N, 4]`` canonical rotations.
+        labels: ``[N]`` integer labels (``LABEL_PART + k`` moves with ``motions[k]``).
+        motions: ``[K, 4, 4]`` ``world_from_part`` per joint.
+
+    Returns:
+        means ``[N, 3]`` and quats ``[N, 4]`` at the joint states.
+    """
+    motions = torch.as_tensor(np.asarray(motions) if not isinstance(motions, torch.Tensor) else motions)
+    k = int(motions.shape[0])
+    if k == 0:
+        return means, quats_wxyz
+    dtype = means.dtype
+    table = torch.eye(4, dtype=torch.float64).repeat(LABEL_PART + k, 1, 1)
+    table[LABEL_PART:] = motions.to(torch.float64)
+    rot_q = torch.as_tensor(matrix_to_quat_wxyz(table[:, :3, :3].numpy()))
+    idx = labels.long().clamp(0, LABEL_PART + k - 1)
+    idx = torch.where(labels.long() >= LABEL_PART + k, 0, idx)  # unknown parts stay
+    rot = table[idx, :3, :3].to(dtype)
+    trans = table[idx, :3, 3].to(dtype)
+    moved = torch.einsum("nij,nj->ni", rot, means) + trans
+    quats = quat_multiply(rot_q[idx].to(dtype), quats_wxyz)
+    return moved, quats
+
+
+def articulate_params(
+    params: GaussianParams, joints: Sequence[Joint], q_per_joint: Sequence[float]
+) -> GaussianParams:
+    """``params`` with every part-k Gaussian moved to joint k's state ``q_per_joint[k]``."""
+    motions = part_motions(joints, q_per_joint)
+    with torch.no_grad():
+        m, q = articulate_tensors(
+            torch.from_numpy(np.asarray(params.means, np.float64)),
+            torch.from_numpy(np.asarray(params.quats_wxyz, np.float64)),
+            torch.from_numpy(np.asarray(params.labels)),
+            motions,
+        )
+    return GaussianParams(
+        means=m.numpy().astype(np.float32),
+        quats_wxyz=q.numpy().astype(np.float32),
+        log_scales=params.log_scales,
+        opacity_logits=params.opacity_logits,
+        sh=params.sh,
+        labels=params.labels,
+    )
+
+
+def render_twin(
+    params: GaussianParams,
+    joints: Sequence[Joint],
+    q_per_joint: Sequence[float],
+    world_from_camera: np.ndarray,
+    intrinsics: Sequence[float],
+    width: int,
+    height: int,
+    *,
+    background: Sequence[float] = (0.0, 0.0, 0.0),
+    backend: str = "auto",
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Render the twin at any joint state from any pinhole camera.
+
+    Args:
+        params: the labelled Gaussians in the canonical (closed) state.
+        joints: one joint per part, in label order (part k = ``joints[k]``).
+        q_per_joint: ``[K]`` joint states, radians or metres.
+        world_from_camera: ``[4, 4]`` camera pose in the canonical frame, OpenCV axes, metres.
+        intrinsics: ``(fx, fy, cx, cy)`` pixels.
+        width, height: image size, pixels.
+
+    Returns:
+        rgb ``[H, W, 3]`` float32 in [0, 1], expected depth ``[H, W]`` float32 metres (0 where
+        nothing is rendered), alpha ``[H, W]`` float32.
+    """
+    moved = articulate_params(params, joints, q_per_joint)
+    return render_view(
+        moved, world_from_camera, intrinsics, width, height, background=background, backend=backend
+    )

@@ -1,0 +1,392 @@
+"""Articulation-conditioned optimisation of the Gaussians: seeding, phase I, phase II, evaluation.
+
+Everything that changes lives in :class:`ArticulationState` (parameters, labels, Adam moments,
+step counter); every hyperparameter in the frozen :class:`ArticulationConfig`. Each training
+step renders one view with the part Gaussians moved by their joints to that view's states, so
+gradients reach the canonical (closed-state) parameters through the rigid motion.
+
+Phase I trains only interior and part Gaussians, on the dynamic views, inside the part region
+(the dilated part mask plus what the closed part covered). Phase II trains everything on both
+recordings, the dynamic views with a weaker weight. Hand pixels never enter a loss.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Callable, Sequence
+from dataclasses import dataclass, field
+
+import numpy as np
+import torch
+from scipy.ndimage import binary_dilation
+from scipy.spatial import cKDTree
+
+from artitwin_core.articulation._config import ArticulationConfig
+from artitwin_core.articulation._kinematics import articulate_tensors, part_motions
+from artitwin_core.gaussians import LABEL_BACKGROUND, LABEL_INTERIOR, LABEL_PART, GaussianParams, rasterize
+from artitwin_core.gaussians._sh import SH_C0
+from artitwin_core.joints import Joint
+from artitwin_core.reconstruction import TrainViews
+from artitwin_core.reconstruction._losses import depth_l1, photometric_loss, psnr
+from artitwin_core.reconstruction._train import view_index
+
+PARAM_NAMES = ("means", "quats_wxyz", "log_scales", "opacity_logits", "sh_dc", "sh_rest")
+_BETAS = (0.9, 0.999)
+_EPS = 1e-15
+
+
+@dataclass
+class ArticulatedViews:
+    """Training or evaluation views with what articulation needs besides the images.
+
+    Attributes:
+        views: images, sensor depth on the RGB grid, canonical ``cam_from_world``, intrinsics.
+        q: ``[V, K]`` float64 joint states at each view (zeros for the static recording).
+        part: ``[V, H, W]`` uint8 part labels (0 = none, k + 1 = part k); zeros when static.
+        hand: ``[V, H, W]`` bool pixels excluded from every loss and metric.
+    """
+
+    views: TrainViews
+    q: np.ndarray
+    part: np.ndarray
+    hand: np.ndarray
+
+    def __len__(self) -> int:
+        return len(self.views.frames)
+
+
+@dataclass
+class ArticulationState:
+    """Everything that evolves during articulation (checkpointable).
+
+    Attributes:
+        params: name -> leaf tensor (see ``PARAM_NAMES``; ``sh_dc [N, 1, 3]``, ``sh_rest [N, K-1, 3]``).
+        labels: ``[N]`` int32 part labels.
+        exp_avg, exp_avg_sq: Adam moments, shaped as ``params``.
+        step: steps taken over both phases.
+        extent: scene scale, metres (the position learning rate scales with it).
+        losses: loss of every step.
+    """
+
+    params: dict[str, torch.Tensor]
+    labels: torch.Tensor
+    exp_avg: dict[str, torch.Tensor]
+    exp_avg_sq: dict[str, torch.Tensor]
+    step: int
+    extent: float
+    losses: list[float] = field(default_factory=list)
+
+    @classmethod
+    def from_params(cls, params: GaussianParams, extent: float) -> ArticulationState:
+        sh = torch.from_numpy(np.ascontiguousarray(params.sh, np.float32))
+        p = {
+            "means": torch.from_numpy(np.ascontiguousarray(params.means, np.float32)),
+            "quats_wxyz": torch.from_numpy(np.ascontiguousarray(params.quats_wxyz, np.float32)),
+            "log_scales": torch.from_numpy(np.ascontiguousarray(params.log_scales, np.float32)),
+            "opacity_logits": torch.from_numpy(np.ascontiguousarray(params.opacity_logits, np.float32)),
+            "sh_dc": sh[:, :1],
+            "sh_rest": sh[:, 1:],
+        }
+        p = {k: v.clone().requires_grad_(True) for k, v in p.items()}
+        return cls(
+            params=p,
+            labels=torch.from_numpy(np.asarray(params.labels, np.int32).copy()),
+            exp_avg={k: torch.zeros_like(v) for k, v in p.items()},
+            exp_avg_sq={k: torch.zeros_like(v) for k, v in p.items()},
+            step=0,
+            extent=float(extent),
+        )
+
+    @property
+    def num_gaussians(self) -> int:
+        return int(self.labels.shape[0])
+
+    def to_params(self) -> GaussianParams:
+        p = {k: v.detach().cpu() for k, v in self.params.items()}
+        return GaussianParams(
+            means=p["means"].numpy().copy(),
+            quats_wxyz=p["quats_wxyz"].numpy().copy(),
+            log_scales=p["log_scales"].numpy().copy(),
+            opacity_logits=p["opacity_logits"].numpy().copy(),
+            sh=torch.cat([p["sh_dc"], p["sh_rest"]], 1).numpy().copy(),
+            labels=self.labels.numpy().copy(),
+        )
+
+    def edit(self, keep: torch.Tensor, new: GaussianParams | None = None) -> None:
+        """Keep rows ``keep``, then append ``new`` Gaussians (with zero Adam moments)."""
+        add = None
+        if new is not None and new.num_gaussians:
+            add = ArticulationState.from_params(new, self.extent)
+        for name in PARAM_NAMES:
+            p = self.params[name].detach()[keep]
+            m, v = self.exp_avg[name][keep], self.exp_avg_sq[name][keep]
+            if add is not None:
+                extra = add.params[name].detach()
+                if extra.shape[1:] != p.shape[1:]:  # fewer SH bands in the seeds: pad with zeros
+                    pad = torch.zeros((extra.shape[0], *p.shape[1:]), dtype=p.dtype)
+                    pad[:, : extra.shape[1]] = extra
+                    extra = pad
+                p = torch.cat([p, extra])
+                m = torch.cat([m, torch.zeros_like(extra)])
+                v = torch.cat([v, torch.zeros_like(extra)])
+            self.params[name] = p.contiguous().requires_grad_(True)
+            self.exp_avg[name], self.exp_avg_sq[name] = m.contiguous(), v.contiguous()
+        labels = self.labels[keep]
+        if add is not None:
+            labels = torch.cat([labels, add.labels])
+        self.labels = labels.contiguous()
+
+
+def render_state(
+    state: ArticulationState,
+    av: ArticulatedViews,
+    v: int,
+    joints: Sequence[Joint],
+    config: ArticulationConfig,
+    subset: torch.Tensor | None = None,
+):
+    """Render view ``v`` with the part Gaussians at that view's joint states (``RenderOutput``)."""
+    p = state.params
+    labels = state.labels
+    idx = slice(None) if subset is None else subset
+    means, quats = articulate_tensors(
+        p["means"][idx], p["quats_wxyz"][idx], labels[idx], part_motions(joints, av.q[v])
+    )
+    sh = torch.cat([p["sh_dc"][idx], p["sh_rest"][idx]], 1)
+    w, h = av.views.size
+    return rasterize(
+        means, quats, p["log_scales"][idx], p["opacity_logits"][idx], sh,
+        av.views.cam_from_world[v], tuple(float(x) for x in av.views.intrinsics[v]), w, h,
+        background=torch.tensor(config.background, dtype=torch.float32), backend=config.backend,
+    )  # fmt: skip
+
+
+def part_regions(
+    state: ArticulationState, av: ArticulatedViews, joints: Sequence[Joint], config: ArticulationConfig
+) -> np.ndarray:
+    """``[V, H, W]`` bool phase-I loss region: dilated part masks plus the closed parts' footprint."""
+    w, h = av.views.size
+    region = np.zeros((len(av), h, w), bool)
+    parts = state.labels >= LABEL_PART
+    closed = ArticulatedViews(av.views, np.zeros_like(av.q), av.part, av.hand)
+    for v in range(len(av)):
+        m = av.part[v] > 0
+        if config.region_dilate_px > 0:
+            m = binary_dilation(m, iterations=config.region_dilate_px)
+        if bool(parts.any()):
+            with torch.no_grad():
+                out = render_state(state, closed, v, joints, config, subset=parts)
+            m |= out.alpha.numpy() > 0.3
+        region[v] = m
+    return region
+
+
+def auto_seed_voxel(av: ArticulatedViews) -> float:
+    d = av.views.depth[av.views.depth_weight > 0]
+    med = float(d.median()) if d.numel() else 2.0
+    fx = float(np.median(av.views.intrinsics[:, 0]))
+    return float(np.clip(1.5 * med / fx, 0.005, 0.03))
+
+
+def seed_unexplained(
+    state: ArticulationState,
+    av: ArticulatedViews,
+    region: np.ndarray,
+    joints: Sequence[Joint],
+    config: ArticulationConfig,
+) -> GaussianParams:
+    """New Gaussians where the dynamic views see surface the current model does not explain.
+
+    A region pixel with valid sensor depth (not hand) is unexplained when the model's alpha is
+    below 0.5 there or its depth lies more than ``seed_depth_tol_m`` behind the sensor. It is
+    lifted into the canonical frame; on a part (mask k + 1) it is moved back to the closed state
+    by the inverse joint motion and labelled part k, elsewhere it is labelled interior.
+    """
+    pts, cols, labs = [], [], []
+    w, h = av.views.size
+    vv, uu = np.mgrid[0:h, 0:w]
+    for v in range(len(av)):
+        with torch.no_grad():
+            out = render_state(state, av, v, joints, config)
+        alpha = out.alpha.numpy()
+        rdepth = out.expected_depth(1e-3).numpy()
+        d = av.views.depth[v].numpy()
+        ok = (av.views.depth_weight[v].numpy() > 0) & region[v] & ~av.hand[v]
+        bad = ok & ((alpha < 0.5) | (rdepth > d + config.seed_depth_tol_m))
+        if not bad.any():
+            continue
+        fx, fy, cx, cy = av.views.intrinsics[v]
+        z = d[bad].astype(np.float64)
+        cam = np.stack([(uu[bad] + 0.5 - cx) / fx * z, (vv[bad] + 0.5 - cy) / fy * z, z, np.ones_like(z)], 1)
+        world_from_cam = np.linalg.inv(av.views.cam_from_world[v].numpy().astype(np.float64))
+        x = cam @ world_from_cam.T
+        lab = np.full(len(z), LABEL_INTERIOR, np.int32)
+        part = av.part[v][bad].astype(np.int64)
+        motions = part_motions(joints, av.q[v])
+        for k in range(len(joints)):
+            on = part == k + 1
+            if on.any():
+                x[on] = x[on] @ np.linalg.inv(motions[k]).T
+                lab[on] = LABEL_PART + k
+        pts.append(x[:, :3])
+        cols.append(av.views.rgb[v].numpy()[bad])
+        labs.append(lab)
+    if not pts:
+        return _empty_params()
+    points, colours, labels = np.concatenate(pts), np.concatenate(cols), np.concatenate(labs)
+    voxel = config.seed_voxel_m or auto_seed_voxel(av)
+    while True:
+        means, rgb, lab = _voxel_merge(points, colours, labels, voxel)
+        if len(means) <= config.seed_max_points:
+            break
+        voxel *= 1.25
+    n = len(means)
+    if n == 0:
+        return _empty_params()
+    if n >= 4:
+        dist, _ = cKDTree(means).query(means, k=4)
+        nn = np.clip(dist[:, 1:].mean(1), 0.3 * voxel, 2.0 * voxel)
+    else:
+        nn = np.full(n, voxel)
+    sh = np.zeros((n, 1, 3), np.float32)
+    sh[:, 0] = (np.clip(rgb, 0, 1) - 0.5) / SH_C0
+    o = config.seed_opacity
+    return GaussianParams(
+        means=means.astype(np.float32),
+        quats_wxyz=np.tile(np.array([1, 0, 0, 0], np.float32), (n, 1)),
+        log_scales=np.repeat(np.log(nn)[:, None], 3, 1).astype(np.float32),
+        opacity_logits=np.full(n, math.log(o / (1 - o)), np.float32),
+        sh=sh,
+        labels=lab.astype(np.int32),
+    )
+
+
+def _empty_params() -> GaussianParams:
+    return GaussianParams(
+        means=np.zeros((0, 3), np.float32), quats_wxyz=np.zeros((0, 4), np.float32),
+        log_scales=np.zeros((0, 3), np.float32), opacity_logits=np.zeros(0, np.float32),
+        sh=np.zeros((0, 1, 3), np.float32), labels=np.zeros(0, np.int32),
+    )  # fmt: skip
+
+
+def _voxel_merge(points: np.ndarray, colours: np.ndarray, labels: np.ndarray, voxel: float):
+    """Mean point and colour per (label, voxel)."""
+    keys = np.concatenate([labels[:, None].astype(np.int64), np.floor(points / voxel).astype(np.int64)], 1)
+    uniq, inv = np.unique(keys, axis=0, return_inverse=True)
+    inv = inv.ravel()
+    cnt = np.bincount(inv, minlength=len(uniq)).astype(np.float64)
+    p = np.stack([np.bincount(inv, points[:, i], len(uniq)) for i in range(3)], 1) / cnt[:, None]
+    c = np.stack([np.bincount(inv, colours[:, i], len(uniq)) for i in range(3)], 1) / cnt[:, None]
+    return p, c, uniq[:, 0].astype(np.int32)
+
+
+def _adam(
+    state: ArticulationState, config: ArticulationConfig, frac: float, trainable: torch.Tensor | None
+) -> None:
+    lr_means = state.extent * config.lr_means * math.exp(frac * math.log(0.01))
+    lrs = {
+        "means": lr_means, "quats_wxyz": config.lr_quats, "log_scales": config.lr_scales,
+        "opacity_logits": config.lr_opacity, "sh_dc": config.lr_sh_dc, "sh_rest": config.lr_sh_rest,
+    }  # fmt: skip
+    b1, b2 = _BETAS
+    t = state.step + 1
+    bc1, bc2 = 1 - b1**t, 1 - b2**t
+    for name, p in state.params.items():
+        g = p.grad
+        if g is None:
+            continue
+        if trainable is not None:
+            g = g * trainable.view(-1, *([1] * (g.dim() - 1))).to(g.dtype)
+        m, v = state.exp_avg[name], state.exp_avg_sq[name]
+        m.mul_(b1).add_(g, alpha=1 - b1)
+        v.mul_(b2).addcmul_(g, g, value=1 - b2)
+        upd = lrs[name] * (m / bc1) / ((v / bc2).sqrt() + _EPS)
+        if trainable is not None:
+            upd = upd * trainable.view(-1, *([1] * (g.dim() - 1))).to(g.dtype)
+        p.sub_(upd)
+
+
+def view_loss(
+    state: ArticulationState,
+    av: ArticulatedViews,
+    v: int,
+    loss_mask: np.ndarray,
+    joints: Sequence[Joint],
+    config: ArticulationConfig,
+) -> torch.Tensor:
+    """Photometric (L1 + D-SSIM) plus depth loss of view ``v`` restricted to ``loss_mask [H, W]``.
+
+    Outside the mask the render is replaced by the target, so those pixels add neither error
+    nor gradient (SSIM windows straddling the border still see both sides).
+    """
+    out = render_state(state, av, v, joints, config)
+    target = av.views.rgb[v]
+    m = torch.from_numpy(loss_mask)
+    comp = torch.where(m[..., None], out.rgb, target)
+    loss = photometric_loss(comp, target, config.lambda_dssim)
+    if config.depth_weight > 0:
+        wgt = av.views.depth_weight[v] * m.to(torch.float32)
+        loss = loss + config.depth_weight * depth_l1(out.expected_depth(), av.views.depth[v], wgt)
+    return loss
+
+
+def run_phase(
+    state: ArticulationState,
+    sources: Sequence[tuple[ArticulatedViews, np.ndarray, float]],
+    joints: Sequence[Joint],
+    config: ArticulationConfig,
+    steps: int,
+    trainable: torch.Tensor | None,
+    callback: Callable[[ArticulationState], None] | None = None,
+) -> None:
+    """``steps`` Adam steps over the views of ``sources`` in seeded random order.
+
+    Args:
+        sources: ``(views, loss_masks [V, H, W] bool, weight)`` per recording.
+        trainable: ``[N]`` bool rows that may change (None = all).
+    """
+    index = [(s, v) for s, (av, _, _) in enumerate(sources) for v in range(len(av))]
+    if not index or steps <= 0:
+        return
+    for i in range(steps):
+        s, v = index[view_index(i, len(index), config.seed)]
+        av, masks, weight = sources[s]
+        loss = weight * view_loss(state, av, v, masks[v], joints, config)
+        for p in state.params.values():
+            p.grad = None
+        loss.backward()
+        with torch.no_grad():
+            _adam(state, config, i / max(steps, 1), trainable)
+        state.step += 1
+        state.losses.append(float(loss.detach()))
+        if callback is not None:
+            callback(state)
+
+
+def prune_faint(state: ArticulationState, config: ArticulationConfig, trainable: torch.Tensor | None) -> int:
+    """Drop trainable Gaussians with opacity below ``min_opacity``; returns how many."""
+    with torch.no_grad():
+        faint = torch.sigmoid(state.params["opacity_logits"].detach()) < config.min_opacity
+        if trainable is not None:
+            faint &= trainable
+        if bool(faint.any()):
+            state.edit(~faint)
+        return int(faint.sum())
+
+
+def evaluate_psnr(
+    params: GaussianParams, av: ArticulatedViews, joints: Sequence[Joint], config: ArticulationConfig
+) -> np.ndarray:
+    """``[V]`` PSNR (dB) of the twin at each view's joint states, hand pixels excluded."""
+    state = ArticulationState.from_params(params, 1.0)
+    out = []
+    for v in range(len(av)):
+        with torch.no_grad():
+            r = render_state(state, av, v, joints, config)
+        keep = torch.from_numpy(~av.hand[v])
+        out.append(psnr(r.rgb[keep], av.views.rgb[v][keep]))
+    return np.asarray(out)
+
+
+def non_background(state: ArticulationState) -> torch.Tensor:
+    return state.labels != LABEL_BACKGROUND

@@ -1,0 +1,233 @@
+"""Stage IV end to end: partition the canonical model, seed, phase I, phase II, held-out PSNR."""
+
+from __future__ import annotations
+
+import time
+from collections.abc import Callable, Sequence
+from dataclasses import dataclass, replace
+
+import numpy as np
+import torch
+
+from artitwin_core._errors import InputError
+from artitwin_core.articulation._config import ArticulationConfig
+from artitwin_core.articulation._optimize import (
+    ArticulatedViews,
+    ArticulationState,
+    evaluate_psnr,
+    non_background,
+    part_regions,
+    prune_faint,
+    run_phase,
+    seed_unexplained,
+)
+from artitwin_core.articulation._partition import partition_gaussians, surface_hits
+from artitwin_core.capture import Capture
+from artitwin_core.gaussians import LABEL_BACKGROUND, LABEL_INTERIOR, LABEL_PART, GaussianParams
+from artitwin_core.joints import Joint
+from artitwin_core.masks import MaskSequence
+from artitwin_core.reconstruction import make_views, scene_extent, split_frames
+
+
+@dataclass(frozen=True)
+class ArticulationResult:
+    """The result of :func:`articulate`.
+
+    Attributes:
+        params: the labelled, optimised Gaussians in the canonical (closed) state.
+        train_frames, test_frames: dynamic frame indices used for training and held out.
+        psnr_canonical_db: held-out PSNR of the canonical model, nothing moved (hand excluded).
+        psnr_partitioned_db: held-out PSNR right after partitioning, parts moved, no training.
+        psnr_phase1_db: held-out PSNR after phase I.
+        psnr_holdout_db: held-out PSNR after phase II (the final model).
+        counts: Gaussians per label name (``background``, ``interior``, ``part_0``, ...) and
+            ``seeded`` (new ones), ``pruned``.
+        losses: ``[steps]`` loss per step over both phases.
+        seconds: wall time of ``partition``, ``seed``, ``phase1``, ``phase2``, ``evaluate``.
+    """
+
+    params: GaussianParams
+    train_frames: list[int]
+    test_frames: list[int]
+    psnr_canonical_db: float
+    psnr_partitioned_db: float
+    psnr_phase1_db: float
+    psnr_holdout_db: float
+    counts: dict[str, int]
+    losses: np.ndarray
+    seconds: dict[str, float]
+
+
+def dynamic_views(
+    dynamic: Capture,
+    world_from_camera: np.ndarray,
+    masks: MaskSequence,
+    joints: Sequence[Joint],
+    frames: Sequence[int],
+) -> ArticulatedViews:
+    """Views of dynamic ``frames`` with canonical poses ``world_from_camera [T, 4, 4]``."""
+    frames = [int(f) for f in frames]
+    q = (
+        np.stack([np.asarray(j.q, np.float64)[frames] for j in joints], 1)
+        if joints
+        else np.zeros((len(frames), 0))
+    )
+    return ArticulatedViews(
+        views=make_views(dynamic, world_from_camera, frames),
+        q=q,
+        part=np.asarray(masks.part[frames]),
+        hand=np.asarray(masks.hand[frames], bool),
+    )
+
+
+def static_views(static: Capture, world_from_camera: np.ndarray, num_joints: int) -> ArticulatedViews:
+    """Views of every static frame (parts closed, nothing masked)."""
+    frames = list(range(static.num_frames))
+    views = make_views(static, world_from_camera, frames)
+    _, h, w, _ = static.rgb.shape
+    return ArticulatedViews(
+        views=views,
+        q=np.zeros((len(frames), num_joints)),
+        part=np.zeros((len(frames), h, w), np.uint8),
+        hand=np.zeros((len(frames), h, w), bool),
+    )
+
+
+def label_counts(labels: np.ndarray, num_joints: int) -> dict[str, int]:
+    out = {
+        "background": int(np.sum(labels == LABEL_BACKGROUND)),
+        "interior": int(np.sum(labels == LABEL_INTERIOR)),
+    }
+    for k in range(num_joints):
+        out[f"part_{k}"] = int(np.sum(labels == LABEL_PART + k))
+    return out
+
+
+def _check_inputs(
+    dynamic: Capture, world_from_camera: np.ndarray, masks: MaskSequence, joints: Sequence[Joint]
+) -> None:
+    t = dynamic.num_frames
+    if world_from_camera.shape != (t, 4, 4):
+        raise InputError(
+            f"articulate: {world_from_camera.shape[0]} dynamic poses for a recording of {t} frames; "
+            "give one canonical pose per dynamic frame."
+        )
+    if masks.part.shape[0] != t or masks.part.shape[1:] != dynamic.rgb.shape[1:3]:
+        raise InputError(
+            f"articulate: masks have shape {masks.part.shape} but the dynamic recording has {t} frames of "
+            f"{dynamic.rgb.shape[2]}x{dynamic.rgb.shape[1]} pixels; recompute the masks of this recording."
+        )
+    for k, j in enumerate(joints):
+        if len(j.q) != t:
+            raise InputError(
+                f"articulate: joint {k} has {len(j.q)} states for {t} dynamic frames; re-estimate the joints."
+            )
+    if int(masks.part.max(initial=0)) > len(joints):
+        raise InputError(
+            f"articulate: masks label part {int(masks.part.max()) - 1} but only {len(joints)} joints were given; "
+            "give one joint per masked part."
+        )
+
+
+def articulate(
+    canonical: GaussianParams,
+    static: Capture,
+    static_world_from_camera: np.ndarray,
+    dynamic: Capture,
+    dynamic_world_from_camera: np.ndarray,
+    masks: MaskSequence,
+    joints: Sequence[Joint],
+    config: ArticulationConfig = ArticulationConfig(),
+    *,
+    callback: Callable[[ArticulationState], None] | None = None,
+) -> ArticulationResult:
+    """Partition and optimise the canonical model against the dynamic recording.
+
+    Args:
+        canonical: the static reconstruction (canonical frame, parts closed); labels ignored.
+        static: the static recording; ``static_world_from_camera [Ts, 4, 4]`` its (refined) poses.
+        dynamic: the dynamic recording; ``dynamic_world_from_camera [Td, 4, 4]`` its poses in the
+            canonical frame (``canonical_from_session @ world_from_camera``).
+        masks: part (label k + 1 = joint k) and hand masks of the dynamic recording.
+        joints: one joint per part, canonical frame, ``q`` per dynamic frame.
+        config: every hyperparameter.
+        callback: called after every training step with the state.
+    """
+    joints = list(joints)
+    dyn_poses = np.asarray(dynamic_world_from_camera, np.float64)
+    _check_inputs(dynamic, dyn_poses, masks, joints)
+    seconds: dict[str, float] = {}
+    train_frames, test_frames = split_frames(dynamic.num_frames, config.holdout_every)
+    train_av = dynamic_views(dynamic, dyn_poses, masks, joints, train_frames)
+    test_av = dynamic_views(dynamic, dyn_poses, masks, joints, test_frames) if test_frames else None
+
+    def heldout(params: GaussianParams, js: Sequence[Joint]) -> float:
+        if test_av is None:
+            return float("nan")
+        return float(np.mean(evaluate_psnr(params, test_av, js, config)))
+
+    t0 = time.perf_counter()
+    st_av = static_views(static, np.asarray(static_world_from_camera, np.float64), len(joints))
+    seen_static = surface_hits(
+        canonical.means, st_av.views.cam_from_world.numpy(), st_av.views.intrinsics, st_av.views.depth.numpy(),
+        st_av.views.depth_weight.numpy(), config.partition.depth_tol_m,
+    )  # fmt: skip
+    votes = partition_gaussians(
+        canonical.means, joints, masks, train_frames, train_av.views.cam_from_world.numpy().astype(np.float64),
+        train_av.views.intrinsics, train_av.views.depth.numpy(), train_av.views.depth_weight.numpy(), config.partition,
+        seen_closed=seen_static,
+    )  # fmt: skip
+    labelled = replace(canonical, labels=votes.labels)
+    seconds["partition"] = time.perf_counter() - t0
+
+    t0 = time.perf_counter()
+    psnr_canonical = heldout(replace(canonical, labels=np.zeros_like(votes.labels)), joints)
+    psnr_partitioned = heldout(labelled, joints)
+    seconds["evaluate"] = time.perf_counter() - t0
+
+    t0 = time.perf_counter()
+    extent = scene_extent(np.concatenate([np.asarray(static_world_from_camera), dyn_poses]))
+    state = ArticulationState.from_params(labelled, extent)
+    region = part_regions(state, train_av, joints, config)
+    seeds = seed_unexplained(state, train_av, region, joints, config)
+    state.edit(torch.ones(state.num_gaussians, dtype=torch.bool), seeds)
+    seconds["seed"] = time.perf_counter() - t0
+
+    t0 = time.perf_counter()
+    trainable = non_background(state)
+    mask1 = region & ~train_av.hand
+    run_phase(state, [(train_av, mask1, 1.0)], joints, config, config.phase1_steps, trainable, callback)
+    pruned = prune_faint(state, config, non_background(state))
+    seconds["phase1"] = time.perf_counter() - t0
+    t0 = time.perf_counter()
+    psnr_phase1 = heldout(state.to_params(), joints)
+    seconds["evaluate"] += time.perf_counter() - t0
+
+    t0 = time.perf_counter()
+    if config.phase2_steps > 0:
+        sources = [
+            (st_av, np.ones((len(st_av), *st_av.hand.shape[1:]), bool), 1.0),
+            (train_av, ~train_av.hand, config.dynamic_weight),
+        ]
+        run_phase(state, sources, joints, config, config.phase2_steps, None, callback)
+        pruned += prune_faint(state, config, None)
+    seconds["phase2"] = time.perf_counter() - t0
+    params = state.to_params()
+    t0 = time.perf_counter()
+    psnr_final = heldout(params, joints) if config.phase2_steps > 0 else psnr_phase1
+    seconds["evaluate"] += time.perf_counter() - t0
+    counts = label_counts(params.labels, len(joints))
+    counts["seeded"] = seeds.num_gaussians
+    counts["pruned"] = pruned
+    return ArticulationResult(
+        params=params,
+        train_frames=train_frames,
+        test_frames=test_frames,
+        psnr_canonical_db=psnr_canonical,
+        psnr_partitioned_db=psnr_partitioned,
+        psnr_phase1_db=psnr_phase1,
+        psnr_holdout_db=psnr_final,
+        counts=counts,
+        losses=np.asarray(state.losses),
+        seconds=seconds,
+    )

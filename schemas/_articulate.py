@@ -1,0 +1,62 @@
+"""Config of the articulation stages (stage IV: articulation-conditioned optimisation and its report).
+
+Each field maps onto a field of the frozen ``artitwin_core.articulation.ArticulationConfig`` (or
+its ``PartitionConfig``); the defaults are theirs.
+"""
+
+from __future__ import annotations
+
+from pydantic import Field
+
+from schemas._base import StageConfig
+
+
+class ArticulateConfig(StageConfig):
+    """Partitioning the canonical Gaussians into background / interior / parts and optimising them
+    against the dynamic recording with the parts moved by their joints."""
+
+    holdout_every: int = Field(
+        default=5,
+        ge=0,
+        description="Dynamic frames 0, k, 2k, ... are held out for evaluation (0 = none); k >= 2.",
+    )
+    phase1_steps: int = Field(
+        default=300, ge=0, description="Phase I steps: dynamic views, only interior and part Gaussians train."
+    )
+    phase2_steps: int = Field(
+        default=150,
+        ge=0,
+        description="Phase II steps: static and dynamic views, every Gaussian trains, joints fixed.",
+    )
+    lambda_dssim: float = Field(
+        default=0.2, ge=0, le=1, description="Weight of D-SSIM in the photometric loss."
+    )
+    depth_weight: float = Field(
+        default=0.5, ge=0, description="Weight of the confidence-weighted L1 depth loss (metres)."
+    )
+    region_dilate_px: int = Field(
+        default=4,
+        ge=0,
+        description="Phase-I loss region: the part mask dilated by this many pixels, plus the closed part.",
+    )
+    dynamic_weight: float = Field(
+        default=0.3, ge=0, description="Phase II: weight of the dynamic views' loss (static views weigh 1)."
+    )
+    partition_depth_tol_m: float = Field(
+        default=0.03,
+        gt=0,
+        description="A Gaussian centre within this of the sensor depth lies on the surface, metres.",
+    )
+    seed_depth_tol_m: float = Field(
+        default=0.03,
+        gt=0,
+        description="New Gaussians where the model's depth lies this far behind the sensor's, metres.",
+    )
+    seed_max_points: int = Field(
+        default=15_000, ge=0, description="At most this many new (revealed-surface) Gaussians."
+    )
+    lr_means: float = Field(
+        default=1.6e-4, gt=0, description="Position learning rate, times the scene extent (metres)."
+    )
+    backend: str = Field(default="auto", description="Rasterizer backend: auto, cpu or cuda.")
+    seed: int = Field(default=0, description="Seed of the view order.")
