@@ -60,6 +60,9 @@ class ArticulationConfig:
         depth_weight: weight of the confidence-weighted L1 depth loss (metres).
         region_dilate_px: the phase-I loss region is the part mask dilated by this many pixels,
             plus the pixels the part covered when closed.
+        phase2_lr_scale: phase II multiplies every learning rate by this. Phase II restarts
+            the position rate's decay, so at 1 it already ends 100x smaller; 0.3 measured
+            0.4 dB lower held-out PSNR on the tiny door scene (80 + 60 steps).
         dynamic_weight: phase II's weight of the dynamic views' loss (static views weigh 1).
         seed_depth_tol_m: a pixel is unexplained when the model is transparent there or its
             depth lies more than this behind the sensor depth, metres.
@@ -81,6 +84,7 @@ class ArticulationConfig:
     lambda_dssim: float = 0.2
     depth_weight: float = 0.5
     region_dilate_px: int = 4
+    phase2_lr_scale: float = 1.0
     dynamic_weight: float = 0.3
     seed_depth_tol_m: float = 0.03
     seed_voxel_m: float | None = None

@@ -281,13 +281,18 @@ def _voxel_merge(points: np.ndarray, colours: np.ndarray, labels: np.ndarray, vo
 
 
 def _adam(
-    state: ArticulationState, config: ArticulationConfig, frac: float, trainable: torch.Tensor | None
+    state: ArticulationState,
+    config: ArticulationConfig,
+    frac: float,
+    trainable: torch.Tensor | None,
+    lr_scale: float = 1.0,
 ) -> None:
     lr_means = state.extent * config.lr_means * math.exp(frac * math.log(0.01))
     lrs = {
         "means": lr_means, "quats_wxyz": config.lr_quats, "log_scales": config.lr_scales,
         "opacity_logits": config.lr_opacity, "sh_dc": config.lr_sh_dc, "sh_rest": config.lr_sh_rest,
     }  # fmt: skip
+    lrs = {k: lr_scale * v for k, v in lrs.items()}
     b1, b2 = _BETAS
     t = state.step + 1
     bc1, bc2 = 1 - b1**t, 1 - b2**t
@@ -338,6 +343,7 @@ def run_phase(
     steps: int,
     trainable: torch.Tensor | None,
     callback: Callable[[ArticulationState], None] | None = None,
+    lr_scale: float = 1.0,
 ) -> None:
     """``steps`` Adam steps over the views of ``sources`` in seeded random order.
 
@@ -356,7 +362,7 @@ def run_phase(
             p.grad = None
         loss.backward()
         with torch.no_grad():
-            _adam(state, config, i / max(steps, 1), trainable)
+            _adam(state, config, i / max(steps, 1), trainable, lr_scale)
         state.step += 1
         state.losses.append(float(loss.detach()))
         if callback is not None:

@@ -209,7 +209,7 @@ def articulate(
             (st_av, np.ones((len(st_av), *st_av.hand.shape[1:]), bool), 1.0),
             (train_av, ~train_av.hand, config.dynamic_weight),
         ]
-        run_phase(state, sources, joints, config, config.phase2_steps, None, callback)
+        run_phase(state, sources, joints, config, config.phase2_steps, None, callback, config.phase2_lr_scale)
         pruned += prune_faint(state, config, None)
     seconds["phase2"] = time.perf_counter() - t0
     params = state.to_params()
