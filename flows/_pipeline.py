@@ -52,6 +52,22 @@ def scene_pipeline(scene: str | Path, config: PipelineConfig, ex: Executor) -> d
     # III. tracks and joints
     tracks = h["track"] = ex.submit("track", config.track, {"dynamic": dynamic, "masks": masks, "registration": reg}, "dynamic")
     joints = h["fit_joints"] = ex.submit("fit_joints", config.fit_joints, {"trajectories": tracks}, "dynamic")
+    # IV. the twin: Gaussians split into background / interior / parts and trained with the parts moved
+    twin = h["articulate"] = ex.submit(
+        "articulate",
+        config.articulate,
+        {
+            "canonical": gaussians, "static": static, "static_poses": poses, "dynamic": dynamic,
+            "registration": reg, "masks": masks, "joints": joints,
+        },
+        "scene",
+    )
+    h["articulate_report"] = ex.submit(
+        "articulate_report",
+        config.articulate,
+        {"canonical": gaussians, "twin": twin, "dynamic": dynamic, "registration": reg, "masks": masks, "joints": joints},
+        "scene",
+    )
     # Model against measurement: the twin's predictions beside what the sensors measured
     prediction = h["predict_views"] = ex.submit(
         "predict_views", config.predict_views, {"capture": static, "checkpoint": gaussians}, "static"
@@ -68,7 +84,7 @@ def scene_pipeline(scene: str | Path, config: PipelineConfig, ex: Executor) -> d
         config.export,
         {
             "static": static, "static_poses": poses, "dynamic": dynamic, "registration": reg, "masks": masks,
-            "joints": joints, "gaussians": gaussians,
+            "joints": joints, "gaussians": twin,
         },
         "scene",
     )

@@ -4,6 +4,7 @@ Every artifact class writes itself to a zarr group (``to_zarr``) and reads itsel
 (``Artifact.from_zarr``) exactly. Field descriptions carry units and frames.
 """
 
+from schemas._articulate import ArticulateConfig
 from schemas._artifacts import (
     CameraPoses,
     CaptureArtifact,
@@ -45,6 +46,7 @@ from schemas._export import ExportBundle, ExportConfig, ExportFile
 from schemas._reconstruct import PoseRefineStageConfig, ReconstructConfig
 
 __all__ = [
+    "ArticulateConfig",
     "Array",
     "ArraySpec",
     "Artifact",

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 from pydantic import Field
 
+from schemas._articulate import ArticulateConfig
 from schemas._base import StageConfig
 from schemas._diagnose import DiagnoseConfig, PredictViewsConfig
 from schemas._export import ExportConfig
@@ -80,6 +81,9 @@ class PipelineConfig(StageConfig):
     part_masks: PartMasksConfig = Field(default_factory=PartMasksConfig, description="Part and hand masks.")
     track: TrackConfig = Field(default_factory=TrackConfig, description="3D point tracks on the parts.")
     fit_joints: JointConfig = Field(default_factory=JointConfig, description="Joint fitting.")
+    articulate: ArticulateConfig = Field(
+        default_factory=ArticulateConfig, description="Stage IV: part/interior/background split and articulated training."
+    )
     predict_views: PredictViewsConfig = Field(
         default_factory=PredictViewsConfig, description="Rendering the twin at the static recording's poses."
     )
@@ -96,5 +100,6 @@ class PipelineConfig(StageConfig):
             return cls(
                 refine_poses=PoseRefineStageConfig(max_features=1024),
                 reconstruct=ReconstructConfig(steps=300, max_init_points=8000, max_gaussians=15000, sh_degree=1),
+                articulate=ArticulateConfig(phase1_steps=120, phase2_steps=60),
             )
         raise ValueError(f"unknown pipeline preset {name!r}; known: default, quick")

@@ -6,6 +6,7 @@ holds the registered stage descriptors by name.
 
 from tasks._convert import to_artifact, to_core
 from tasks._stage import STAGES, Stage, stage
+from tasks.articulate import articulate_report, articulate_twin
 from tasks.diagnose import diagnose_twin, predict_views
 from tasks.export import export_twin
 from tasks.ingest import check_capture, ingest_recording
@@ -17,6 +18,8 @@ from tasks.track import track_parts
 __all__ = [
     "STAGES",
     "Stage",
+    "articulate_report",
+    "articulate_twin",
     "check_capture",
     "diagnose_twin",
     "export_twin",

@@ -68,7 +68,7 @@ def test_scene_flow_writes_summary_and_reruns_from_cache(tmp_path, tiny_scene):
     assert set(summary["stages"]) == {
         "ingest/static", "ingest/dynamic", "capture_check/static", "capture_check/dynamic", "refine_poses",
         "reconstruct", "reconstruct_report", "register", "part_masks", "track", "fit_joints",
-        "predict_views", "diagnose", "export",
+        "articulate", "articulate_report", "predict_views", "diagnose", "export",
     }
     assert all(s["status"] == "computed" for s in summary["stages"].values())
     check = summary["stages"]["capture_check/static"]["metrics"]
@@ -84,6 +84,9 @@ def test_scene_flow_writes_summary_and_reruns_from_cache(tmp_path, tiny_scene):
     assert urdf.parent == out / "export" and urdf.is_file()
     assert 'type="revolute"' in urdf.read_text()
     assert Path(summary["exports"]["export/twin.xml"]).is_file()
+    # The twin's parts are labelled, so the export has a splat file per part besides the base.
+    assert summary["stages"]["articulate_report"]["metrics"]["part_0_gaussians_count"] > 0
+    assert any(p.startswith("export/splats/") and "part" in p for p in summary["exports"]), list(summary["exports"])
     # The diagnosis compares the twin with the static recording and says what it found.
     assert summary["stages"]["diagnose"]["notes"], summary["stages"]["diagnose"]
     assert "<svg" in Path(summary["exports"]["diagnosis.html"]).read_text()
