@@ -567,6 +567,10 @@ def _finalize(fit: _Fit, ref: int, y, sigma_glob, cfg: JointFitConfig) -> tuple[
         rot_ref, trans_ref = joint_motion(kind, axis, pivot, np.array([q_ref]), fit.pitch)
         points = points @ rot_ref[0].T + trans_ref[0]
         q = q - q_ref
+        if kind == "revolute":
+            # An angle and the same angle +- 2 pi are one pose: a per-frame angle near -pi against a
+            # reference near +pi must read as a small turn, not as ~2 pi (a door's range of 356 deg).
+            q = np.where(np.isfinite(q), np.mod(q + np.pi, 2.0 * np.pi) - np.pi, q)
     part = fit.track_ok
     centroid = points[part].mean(0) if part.any() else np.nanmean(points, 0)
     pivot = pivot + ((centroid - pivot) @ axis) * axis

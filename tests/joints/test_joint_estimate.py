@@ -300,3 +300,26 @@ def test_translation_with_a_sliver_of_rotation_is_prismatic():
     fit = estimate_joint(Trajectories(p, traj.pixels, traj.valid, traj.query_frame))
     assert fit.joint.joint_type == "prismatic"
     assert axis_angle_error_deg(fit.joint.axis, truth.axis) < 1.0
+
+
+def test_revolute_state_is_wrapped_against_the_reference():
+    """The alternation may leave the reference frame's angle near +pi and an opened frame's near
+    -pi (the same door, turned a little): q must come out as the small turn, not ~2 pi. Seen on
+    door+drawer as a 356 deg range before the wrap."""
+    from artitwin_core.joints._estimate import _finalize, _Fit, joint_motion
+
+    rng = np.random.default_rng(0)
+    axis, pivot = np.array([0.0, 1.0, 0.0]), np.array([0.4, 0.45, 0.0])
+    closed = rng.uniform(-0.3, 0.3, (40, 3)) + [0.0, 0.45, 0.05]
+    true_q = np.array([0.0, 0.05, 0.3, 0.6])
+    rot, tr = joint_motion("revolute", axis, pivot, true_q, 0.0)
+    y = np.einsum("tij,nj->tni", rot, closed) + tr[:, None, :]
+    # The fit's gauge: latent points turned by -(pi - 0.05) so that q(ref) = pi - 0.05.
+    offset = np.pi - 0.05
+    r0, t0 = joint_motion("revolute", axis, pivot, np.array([-offset]), 0.0)
+    latent = closed @ r0[0].T + t0[0]
+    q_fit = np.mod(true_q + offset + np.pi, 2 * np.pi) - np.pi  # [pi-0.05, pi, -pi+0.25, -pi+0.55]
+    fit = _Fit("revolute", axis, pivot, 0.0, q_fit, latent, np.ones((4, 40)), np.ones(40, bool), np.full(4, 1e-3))
+    joint, _ = _finalize(fit, 0, y, 1e-3, JointFitConfig())
+    np.testing.assert_allclose(joint.q, true_q, atol=1e-9)
+    np.testing.assert_allclose(joint.q_range, [0.0, 0.6], atol=1e-9)
