@@ -61,6 +61,11 @@ class DiagnoseConfig(StageConfig):
     min_tracks_count: int = Field(
         default=10, ge=1, description="A joint with fewer valid tracks than this is not diagnosed."
     )
+    heldout_every: int = Field(
+        default=4, ge=0,
+        description="Hold out every n-th frame (images and tracks), refit the enabled effects on the others and "
+        "score them on the held-out frames (per-frame parameters such as exposure re-estimated there); 0 = no check.",
+    )
 
 
 class ViewPrediction(Artifact):
@@ -112,7 +117,10 @@ class DiagnosisReport(Artifact):
     )
     metrics: dict[str, float] = Field(
         default_factory=dict,
-        description="'<scope>/<target>_energy_before|after|floor' energies and summary counts (*_count).",
+        description="'<scope>/<target>_energy_before|after|floor' energies; held-out frames: "
+        "'<scope>/heldout_<error>_before|after' (rgb_mae_linear, depth_mae_m, depth_nll_nats, track_rms_m), "
+        "'<scope>/heldout_<target>_energy_before|after', per enabled effect '<scope>/<effect>/heldout_...'; "
+        "and counts (*_count).",
     )
     per_frame: dict[str, list[float]] = Field(
         default_factory=dict,

@@ -129,7 +129,7 @@ def _track_data(joints: JointSet, trajectories: TrajectoriesArtifact, config: Di
 def _core_config(config: DiagnoseConfig) -> CoreDiagnoseConfig:
     return CoreDiagnoseConfig(
         min_explained=config.min_explained, min_gain_over_floor=config.min_gain_over_floor,
-        structure_ratio=config.structure_ratio, max_rounds=config.max_rounds,
+        structure_ratio=config.structure_ratio, max_rounds=config.max_rounds, heldout_every=config.heldout_every,
     )
 
 
@@ -182,6 +182,22 @@ def report_from_sections(sections: list[tuple[str, Diagnosis, ResidualData]], ti
         for when, d in (("before", data), ("after", after)):
             for name, curve in per_frame_errors(d).items():
                 per_frame[f"{scope}/{name}_{when}"] = [float(v) for v in curve]
+        if dg.heldout is not None:
+            # Held-out frames: the enabled effects refitted on the other frames (per-frame parts re-estimated).
+            h = dg.heldout
+            metrics[f"{scope}/heldout_image_frames_count"] = float(len(h.image_frames))
+            metrics[f"{scope}/heldout_track_frames_count"] = float(len(h.track_frames))
+            for name, v in h.errors_before.items():
+                metrics[f"{scope}/heldout_{name}_before"] = float(v)
+                metrics[f"{scope}/heldout_{name}_after"] = float(h.errors_after[name])
+            for t, v in h.energy_before.items():
+                metrics[f"{scope}/heldout_{t}_energy_before"] = float(v)
+                metrics[f"{scope}/heldout_{t}_energy_after"] = float(h.energy_after[t])
+            for c in (c for c in h.checks if not c.failed):  # a failed refit is in the conclusion
+                metrics[f"{scope}/{c.name}/heldout_{c.target}_energy_before"] = float(c.energy_before)
+                metrics[f"{scope}/{c.name}/heldout_{c.target}_energy_after"] = float(c.energy_after)
+                metrics[f"{scope}/{c.name}/heldout_{c.error}_before"] = float(c.error_before)
+                metrics[f"{scope}/{c.name}/heldout_{c.error}_after"] = float(c.error_after)
         conclusion += [f"{scope}: {line}" for line in dg.conclusion]
         for caption, png in residual_maps(data, after, n_frames=1):
             pixels = np.asarray(Image.open(io.BytesIO(png)).convert("RGB"))
@@ -195,7 +211,7 @@ def report_from_sections(sections: list[tuple[str, Diagnosis, ResidualData]], ti
     )
 
 
-@stage(name="diagnose", version=1, config=DiagnoseConfig, output=DiagnosisReport)
+@stage(name="diagnose", version=2, config=DiagnoseConfig, output=DiagnosisReport)
 def diagnose_twin(
     capture: CaptureArtifact,
     prediction: ViewPrediction,

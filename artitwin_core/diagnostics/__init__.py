@@ -2,8 +2,9 @@
 
 ``make_residual_data`` puts a twin's predictions beside a recording; ``compare_frames`` gives
 residual maps and per-frame error curves; ``diagnose`` ranks the registered ``Effect`` plugins by
-the residual they explain; ``write_html_report`` writes it all for a user. User effects are loaded
-by ``discover_effects`` (entry points ``artitwin.effects``, env var ``ARTITWIN_EFFECTS``).
+the residual they explain and checks the enabled ones on held-out frames (``evaluate_heldout``);
+``write_html_report`` writes it all for a user. User effects are loaded by ``discover_effects``
+(entry points ``artitwin.effects``, env var ``ARTITWIN_EFFECTS``).
 """
 
 from artitwin_core.diagnostics import _catalog as _catalog  # registers the built-in effects
@@ -19,6 +20,7 @@ from artitwin_core.diagnostics._catalog import (
 )
 from artitwin_core.diagnostics._compare import FrameComparison, compare_frames
 from artitwin_core.diagnostics._diagnose import DiagnoseConfig, Diagnosis, Structure, diagnose
+from artitwin_core.diagnostics._heldout import ERROR_OF_TARGET, HeldOut, HeldOutCheck, evaluate_heldout
 from artitwin_core.diagnostics._plugin import (
     ENTRY_POINT_GROUP,
     ENV_VAR,
@@ -44,6 +46,7 @@ from artitwin_core.diagnostics._residuals import (
 __all__ = [
     "ENTRY_POINT_GROUP",
     "ENV_VAR",
+    "ERROR_OF_TARGET",
     "TARGETS",
     "AxisTilt",
     "CaptureQuality",
@@ -56,6 +59,8 @@ __all__ = [
     "Effect",
     "Evidence",
     "ExposureWhiteBalance",
+    "HeldOut",
+    "HeldOutCheck",
     "ResidualData",
     "ScrewJoint",
     "Signature",
@@ -66,6 +71,7 @@ __all__ = [
     "compare_frames",
     "diagnose",
     "discover_effects",
+    "evaluate_heldout",
     "make_residual_data",
     "noise_floor",
     "per_frame_errors",

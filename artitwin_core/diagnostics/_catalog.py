@@ -69,6 +69,23 @@ class ExposureWhiteBalance(Effect):
                   "white_balance_rb_std": float(np.std(gain[:, [0, 2]] / gain[:, 1:2]))}
         return params, ev
 
+    def transfer(self, params: dict, train: ResidualData, heldout: ResidualData) -> dict:
+        """White balance (gain ratios to green) and offsets are the camera's, fixed from training;
+        the exposure of a held-out frame is one scalar per frame, refitted on that frame."""
+        gain, offset = np.array(params["gain"], np.float64), np.array(params["offset"], np.float64)
+        fitted = train.rgb_valid.sum((1, 2)) >= 20
+        if not fitted.any():
+            return params
+        wb = np.median(gain[fitted] / np.maximum(gain[fitted][:, 1:2], 1e-9), 0)  # [3], green = 1
+        o = np.median(offset[fitted], 0)
+        for t in np.flatnonzero(heldout.rgb_valid.sum((1, 2)) >= 20):
+            v = heldout.rgb_valid[t]
+            p = heldout.rgb_pred[t][v].astype(np.float64) * wb
+            m = heldout.rgb_meas[t][v].astype(np.float64) - o
+            exposure = float(np.sum(p * m) / max(np.sum(p * p), 1e-12))
+            gain[t], offset[t] = exposure * wb, o
+        return {**params, "gain": gain.tolist(), "offset": offset.tolist()}
+
     def apply(self, data: ResidualData, params: dict) -> ResidualData:
         g = np.asarray(params["gain"], np.float32)[:, None, None, :]
         o = np.asarray(params["offset"], np.float32)[:, None, None, :]

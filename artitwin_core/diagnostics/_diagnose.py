@@ -7,6 +7,7 @@ least ``min_gain_over_floor`` noise floors), and the search repeats on what is l
 round's signatures rank every effect; the enabled ones, in order, are the diagnosis. Whatever a
 target still holds beyond ``structure_ratio`` noise floors is reported as unexplained structure,
 with the variable it correlates with most (frame index, depth, image radius, joint state).
+The enabled effects are then checked on frames they were not fitted on (``evaluate_heldout``).
 """
 
 from __future__ import annotations
@@ -16,6 +17,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from artitwin_core._errors import InputError
+from artitwin_core.diagnostics._heldout import HeldOut, evaluate_heldout
 from artitwin_core.diagnostics._plugin import Effect, Signature, registered_effects
 from artitwin_core.diagnostics._residuals import TARGETS, ResidualData, noise_floor, target_energy
 
@@ -33,6 +35,8 @@ class DiagnoseConfig:
         structure_ratio: a target whose energy stays above this many noise floors holds structure.
         max_rounds: at most this many effects are enabled.
         min_correlation: a correlation ratio (eta^2) below this is not worth naming.
+        heldout_every: hold out every n-th frame to check the enabled effects on frames they were
+            not fitted on (0: no check).
     """
 
     min_explained: float = 0.2
@@ -40,6 +44,7 @@ class DiagnoseConfig:
     structure_ratio: float = 2.0
     max_rounds: int = 4
     min_correlation: float = 0.05
+    heldout_every: int = 4
 
 
 @dataclass(frozen=True)
@@ -76,6 +81,8 @@ class Diagnosis:
         remaining: targets that still hold structure above the floor.
         conclusion: the plain-language verdict, one line per finding.
         residual_after: the data with the enabled effects applied.
+        heldout: the enabled effects refitted on training frames and scored on held-out ones
+            (None when the check is off or the recording is too short).
     """
 
     ranking: list[Signature]
@@ -87,6 +94,7 @@ class Diagnosis:
     remaining: list[Structure] = field(default_factory=list)
     conclusion: list[str] = field(default_factory=list)
     residual_after: ResidualData | None = None
+    heldout: HeldOut | None = None
 
     @property
     def no_effect_needed(self) -> bool:
@@ -185,6 +193,7 @@ def diagnose(
     floors = {t: _floor(data, t) for t in targets}
     before = {t: target_energy(data, t) for t in targets}
 
+    effects_by_name = dict(pool)
     current = data
     enabled: list[Signature] = []
     ranking: list[Signature] = []
@@ -224,4 +233,12 @@ def diagnose(
         conclusion.append("No effect needed: every residual is at the noise floor.")
     elif not enabled:
         conclusion.insert(0, "No known effect explains a significant share of the residual.")
-    return Diagnosis(ranking, enabled, before, after, floors, significant, remaining, conclusion, current)
+    heldout = (evaluate_heldout(data, [effects_by_name[s.name] for s in enabled], cfg.heldout_every)
+               if cfg.heldout_every else None)
+    if heldout is not None:
+        for c in heldout.checks:
+            conclusion.append(
+                f"On held-out frames, {c.name} could not be refitted on the training frames ({c.failed})." if c.failed
+                else f"On held-out frames, {c.name} takes {c.error} from {c.error_before:.4g} to {c.error_after:.4g}."
+            )
+    return Diagnosis(ranking, enabled, before, after, floors, significant, remaining, conclusion, current, heldout)

@@ -10,6 +10,9 @@ energy(before)``, the same yardstick for every effect, built in or not.
 User effects are found through the ``artitwin.effects`` entry-point group and the
 ``ARTITWIN_EFFECTS`` environment variable (``module:attr[,module:attr...]``, where ``attr`` is an
 ``Effect`` subclass, an instance, or a list of either).
+
+An effect whose parameters are per frame (an exposure gain) also overrides ``transfer``: the
+held-out check fits on training frames and needs that part re-estimated on frames it never saw.
 """
 
 from __future__ import annotations
@@ -96,6 +99,16 @@ class Effect(ABC):
     @abstractmethod
     def apply(self, data: ResidualData, params: dict) -> ResidualData:
         """A copy of ``data`` with the effect added to the prediction (or removed from the measurement)."""
+
+    def transfer(self, params: dict, train: ResidualData, heldout: ResidualData) -> dict:
+        """Parameters for frames the fit never saw (the held-out check, ``evaluate_heldout``).
+
+        ``params`` were fitted on ``train``; ``heldout`` is the same data with only the held-out
+        frames valid. A global effect (the default) keeps ``params``. An effect with per-frame
+        parameters re-estimates those on the held-out frames with its global part fixed, and
+        returns parameters ``apply`` can use on every frame.
+        """
+        return params
 
     def signature(self, data: ResidualData) -> Signature:
         """Fit, apply, and measure how much of the targeted residual the effect explains."""

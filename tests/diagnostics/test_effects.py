@@ -2,7 +2,8 @@
 
 For each effect the generator can inject, the diagnosis (never told which) must rank the matching
 plugin first, enable it, recover the injected parameters, and cut the residual it targets by at
-least half; a clean scene must need no effect. The prediction is the ground-truth render without
+least half, on the frames it was fitted on and on held-out frames it was refitted without, where
+the plain error (RGB/depth MAE, depth NLL, track RMS) must fall too; a clean scene must need no effect. The prediction is the ground-truth render without
 the effect (``synthetic_residual_data``), and the joint is the nominal one, so what remains is the
 injected effect plus sensor noise. Tolerances: measured error on seed 7 (tiny scene), ~3-5x headroom.
 """
@@ -12,7 +13,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from artitwin_core.diagnostics import diagnose, target_energy
+from artitwin_core.diagnostics import ERROR_OF_TARGET, diagnose, target_energy
 from artitwin_core.synth._generate import _Recorder
 from tests.diagnostics._scenes import residual_data, scene
 
@@ -93,6 +94,14 @@ def test_injected_effect_is_ranked_first_and_recovered(furniture, injected, expe
     assert top.energy_before - top.energy_after > 1.5 * dg.floors[top.target]  # screw: 2.2 floors
     assert dg.energy_after[top.target] == pytest.approx(target_energy(dg.residual_after, top.target))
     assert not dg.no_effect_needed
+    # Held out: refitted on the other frames, it cuts its target by half and lowers the error there.
+    held = dg.heldout
+    assert held.image_frames == (2, 6, 10) and held.track_frames == (2, 6, 10)
+    check_ho = held.checks[0]
+    assert (check_ho.name, check_ho.error) == (expected, ERROR_OF_TARGET[top.target])
+    assert check_ho.error_after < check_ho.error_before, check_ho  # screw: 3.7 vs 6.1 mm
+    assert check_ho.energy_after < 0.5 * check_ho.energy_before, check_ho  # white balance: 0.28, screw: 0.37
+    assert held.errors_after[check_ho.error] == pytest.approx(check_ho.error_after)
 
 
 @pytest.mark.parametrize("furniture", ["door", "drawer"])
@@ -106,6 +115,12 @@ def test_clean_scene_needs_no_effect(furniture):
     # Not vacuous: the effects were tested, and every target was measured.
     assert len(dg.ranking) >= 5
     assert set(dg.energy_before) >= {"photometric", "depth", "depth-noise", "joint-tracks"}
+    # The held-out check ran, measured every error, and with nothing enabled nothing changed.
+    assert dg.heldout.checks == []
+    assert set(dg.heldout.errors_before) == {"rgb_mae_linear", "depth_mae_m", "depth_nll_nats", "track_rms_m"}
+    assert dg.heldout.errors_after == dg.heldout.errors_before
+    assert dg.heldout.energy_after == dg.heldout.energy_before
+    assert 0 < dg.heldout.errors_before["track_rms_m"] < 0.005  # noise only: sqrt(3) x 2 mm = 3.5 mm
 
 
 def test_two_effects_are_both_found_greedily():

@@ -43,6 +43,15 @@ PLUGIN = textwrap.dedent('''
             return replace(data, depth_meas=(data.depth_meas - params["offset_m"]).astype(np.float32))
 
 
+    class NeedsEveryFrame(DepthOffset):
+        name = "needs_every_frame"
+
+        def fit(self, data):
+            if not data.depth_valid.any((1, 2)).all():
+                raise ValueError("a frame has no depth")
+            return super().fit(data)
+
+
     class NotAnEffect:
         name = "nope"
 
@@ -123,3 +132,16 @@ def test_a_name_cannot_be_taken_twice_by_accident(plugin_module):
     with pytest.raises(InputError, match="already registered"):
         register_effect(other)
     assert register_effect(other, replace=True).name == "depth_offset_only"
+
+
+def test_a_plugin_that_cannot_be_refitted_on_training_frames_is_reported_not_raised(plugin_module, monkeypatch):
+    # The diagnosis (all frames) enables it; the held-out check (training frames only) cannot refit it.
+    monkeypatch.setenv(ENV_VAR, f"{plugin_module}:NeedsEveryFrame")
+    discover_effects()
+    effect = registered_effects()["needs_every_frame"]
+    dg = diagnose(residual_data("door", (("depth_bias", {"scale": 1.0, "offset_m": 0.02}),)), {effect.name: effect})
+    assert [s.name for s in dg.enabled] == ["needs_every_frame"]
+    (check,) = dg.heldout.checks
+    assert check.failed == "ValueError: a frame has no depth"
+    assert dg.heldout.errors_after == dg.heldout.errors_before  # left out of the held-out chain
+    assert any("could not be refitted" in line for line in dg.conclusion)

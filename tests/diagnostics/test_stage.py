@@ -55,6 +55,13 @@ def test_stage_names_both_effects_and_the_error_falls():
     assert len(before) == capture.rgb.shape[0] and np.all(after < before)
     tb, ta = (np.nanmean(report.per_frame[f"joint_0/track_rms_m_{w}"]) for w in ("before", "after"))
     assert ta < tb
+    # Held-out frames: each effect refitted without them still lowers the error there.
+    for scope, effect, err in ((STATIC_SCOPE, "exposure_white_balance", "rgb_mae_linear"),
+                               ("joint_0", "screw_joint", "track_rms_m")):
+        assert m[f"{scope}/{effect}/heldout_{err}_after"] < m[f"{scope}/{effect}/heldout_{err}_before"]
+        assert m[f"{scope}/heldout_{err}_after"] < m[f"{scope}/heldout_{err}_before"]
+    assert m[f"{STATIC_SCOPE}/heldout_image_frames_count"] == 3
+    assert "Held-out frames" in report.html and "re-estimated on each held-out frame" in report.html
     screw = next(f for f in report.findings if f.scope == "joint_0" and f.name == "screw_joint")
     assert screw.enabled and screw.significant
     assert screw.params["pitch_m_per_rad"] == pytest.approx(scene("door", EFFECTS).truth.joints[0].pitch, abs=0.0015)
@@ -74,6 +81,9 @@ def test_stage_on_a_clean_scene_says_no_effect_is_needed():
     assert report.enabled == [] and report.no_effect_needed
     assert report.metrics["significant_count"] == 0
     assert len(report.findings) >= 5  # tested, found nothing
+    m = report.metrics
+    for err in ("rgb_mae_linear", "depth_mae_m", "depth_nll_nats"):
+        assert m[f"{STATIC_SCOPE}/heldout_{err}_after"] == m[f"{STATIC_SCOPE}/heldout_{err}_before"]
 
 
 def test_stage_restricted_to_named_effects():
