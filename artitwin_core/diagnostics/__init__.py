@@ -7,7 +7,15 @@ the residual they explain and checks the enabled ones on held-out frames (``eval
 (entry points ``artitwin.effects``, env var ``ARTITWIN_EFFECTS``).
 """
 
+from artitwin_core.diagnostics import _camera as _camera  # registers the camera effects
 from artitwin_core.diagnostics import _catalog as _catalog  # registers the built-in effects
+from artitwin_core.diagnostics._camera import (
+    LensDistortion,
+    PoseDrift,
+    RollingShutter,
+    TimeOffset,
+    image_velocity,
+)
 from artitwin_core.diagnostics._capture_quality import CaptureQuality, capture_quality
 from artitwin_core.diagnostics._catalog import (
     AxisTilt,
@@ -61,10 +69,14 @@ __all__ = [
     "ExposureWhiteBalance",
     "HeldOut",
     "HeldOutCheck",
+    "LensDistortion",
+    "PoseDrift",
     "ResidualData",
+    "RollingShutter",
     "ScrewJoint",
     "Signature",
     "Structure",
+    "TimeOffset",
     "TrackModel",
     "Vignetting",
     "capture_quality",
@@ -72,6 +84,7 @@ __all__ = [
     "diagnose",
     "discover_effects",
     "evaluate_heldout",
+    "image_velocity",
     "make_residual_data",
     "noise_floor",
     "per_frame_errors",

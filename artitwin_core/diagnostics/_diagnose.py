@@ -3,7 +3,9 @@
 Greedy forward selection (matching pursuit over effects): every applicable effect's signature is
 measured on the current residual; the one that explains the largest share of its target is
 enabled if that share is significant (at least ``min_explained`` of the target, and a gain of at
-least ``min_gain_over_floor`` noise floors), and the search repeats on what is left. The first
+least ``min_gain_over_floor`` noise floors), and the search repeats on what is left. Noise models
+(the ``depth-noise`` target) come after every significant systematic effect: a drifting pose or a
+depth bias widens the residual's spread too. The first
 round's signatures rank every effect; the enabled ones, in order, are the diagnosis. Whatever a
 target still holds beyond ``structure_ratio`` noise floors is reported as unexplained structure,
 with the variable it correlates with most (frame index, depth, image radius, joint state).
@@ -21,6 +23,8 @@ from artitwin_core.diagnostics._heldout import HeldOut, evaluate_heldout
 from artitwin_core.diagnostics._plugin import Effect, Signature, registered_effects
 from artitwin_core.diagnostics._residuals import TARGETS, ResidualData, noise_floor, target_energy
 
+# Targets that measure a noise model, not a residual: their effects are enabled after the others.
+NOISE_TARGETS = ("depth-noise",)
 # Tolerance of the depth-noise model: a 5 % spread mismatch is "at the floor".
 _DEPTH_NOISE_TOLERANCE = 0.05**2
 
@@ -203,7 +207,9 @@ def diagnose(
         sigs = [s for s in sigs if np.isfinite(s.explained_fraction) and s.target in floors]
         ok = {s.name for s in sigs if _significant(s, floors[s.target], cfg)}
         # Significant effects first: a large share of a residual already at the floor is no finding.
-        sigs.sort(key=lambda s: (s.name not in ok, -s.explained_fraction))
+        # Among them, noise models last: a systematic error (a drifting pose, a depth bias) widens
+        # the residual's spread too, so the noise is judged on what the systematic effects leave.
+        sigs.sort(key=lambda s: (s.name not in ok, s.target in NOISE_TARGETS, -s.explained_fraction))
         if round_ == 0:
             ranking, significant = sigs, tuple(s.name for s in sigs if s.name in ok)
         best = sigs[0] if sigs and sigs[0].name in ok else None

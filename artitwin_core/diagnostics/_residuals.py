@@ -95,6 +95,9 @@ class ResidualData:
         tracks_valid: ``[T2, N]`` bool.
         track_noise_m: per-coordinate noise of one track observation, metres (the floor).
         timestamps: ``[T]`` seconds of the image frames.
+        depth_intrinsics: ``[T, 4]`` (fx, fy, cx, cy) pixels of the depth map.
+        world_from_camera: ``[T, 4, 4]`` the recorded camera poses (OpenCV axes) the prediction was
+            rendered at; the RGB and depth cameras share them (as ARKit's do).
     """
 
     rgb_pred: np.ndarray | None = None
@@ -110,6 +113,8 @@ class ResidualData:
     tracks_valid: np.ndarray | None = None
     track_noise_m: float = 0.002
     timestamps: np.ndarray | None = None
+    depth_intrinsics: np.ndarray | None = None
+    world_from_camera: np.ndarray | None = None
 
     @property
     def has_rgb(self) -> bool:
@@ -122,6 +127,11 @@ class ResidualData:
     @property
     def has_tracks(self) -> bool:
         return self.tracks is not None and self.tracks_obs is not None
+
+    @property
+    def has_poses(self) -> bool:
+        """Recorded poses and timestamps for every image frame (the camera-motion effects need them)."""
+        return self.world_from_camera is not None and self.timestamps is not None
 
     def rgb_residual(self) -> np.ndarray:
         """``[T, H, W, 3]`` measured minus predicted linear RGB (0 outside ``rgb_valid``)."""
@@ -165,6 +175,8 @@ def make_residual_data(
     tracks_valid=None,
     track_noise_m: float = 0.002,
     timestamps=None,
+    depth_intrinsics=None,
+    world_from_camera=None,
 ) -> ResidualData:
     """Check shapes and build ``ResidualData`` from sRGB images and depth maps.
 
@@ -178,6 +190,8 @@ def make_residual_data(
         tracks, tracks_obs ``[T2, N, 3]``, tracks_valid ``[T2, N]``: the joint's track model and observations.
         track_noise_m: per-coordinate noise of a track observation, metres.
         timestamps: ``[T]`` seconds.
+        depth_intrinsics: ``[T, 4]`` or ``[4]`` (fx, fy, cx, cy) pixels of the depth map.
+        world_from_camera: ``[T, 4, 4]`` the recorded poses the prediction was rendered at.
     """
     kw: dict = {"depth_sigma": (float(depth_sigma[0]), float(depth_sigma[1])), "track_noise_m": float(track_noise_m)}
     if rgb_pred is not None or rgb_meas is not None:
@@ -226,6 +240,22 @@ def make_residual_data(
         kw.update(tracks=tracks, tracks_obs=np.where(val[..., None], obs, 0.0), tracks_valid=val)
     if timestamps is not None:
         kw["timestamps"] = np.asarray(timestamps, dtype=np.float64)
+    n_img = kw["rgb_pred"].shape[0] if "rgb_pred" in kw else kw["depth_pred"].shape[0] if "depth_pred" in kw else None
+    if depth_intrinsics is not None:
+        k = np.asarray(depth_intrinsics, dtype=np.float64)
+        k = np.broadcast_to(k, (n_img or 1, 4)).copy() if k.ndim == 1 else k
+        if "depth_pred" not in kw or k.shape != (n_img, 4):
+            raise InputError(f"make_residual_data: depth_intrinsics has shape {k.shape}; give it as [T, 4] "
+                             "together with depth_pred and depth_meas.")
+        kw["depth_intrinsics"] = k
+    if world_from_camera is not None:
+        poses = np.asarray(world_from_camera, dtype=np.float64)
+        if n_img is None or poses.shape != (n_img, 4, 4) or not np.all(np.isfinite(poses)):
+            raise InputError(f"make_residual_data: world_from_camera has shape {poses.shape}; give one finite "
+                             f"[4, 4] recorded pose per image frame ([{n_img}, 4, 4]).")
+        kw["world_from_camera"] = poses
+    if "timestamps" in kw and n_img is not None and kw["timestamps"].shape != (n_img,):
+        raise InputError(f"make_residual_data: timestamps has shape {kw['timestamps'].shape}; expected [{n_img}].")
     return ResidualData(**kw)
 
 

@@ -1,6 +1,7 @@
 """Residual data of a synthetic scene, with the twin replaced by the ground truth.
 
-The prediction side is the exact scene (``synth.render_state`` at the true poses), and for the
+The prediction side is the exact scene (``synth.render_state`` at the recorded poses, where the
+pipeline renders its twin: the true ones unless a pose or timing effect is injected), and for the
 tracks the part's nominal joint (``joint="nominal"``: the designed hinge or slide, a revolute for
 a screw) or a free revolute / prismatic fit of the tracks (``joint="fit"``, ``joints.estimate_joint``).
 Tracks follow the true part motion plus noise. Whatever residual remains is the injected sensor or
@@ -88,7 +89,8 @@ def synthetic_residual_data(
     q0 = [0.0] * len(truth.joints)
     rgb, depth = [], []
     for t in range(cap.num_frames):
-        pose = truth.static_world_from_camera[t]
+        # At the recorded pose, as the pipeline renders its twin: pose and timing effects then show.
+        pose = cap.world_from_camera[t]
         rgb.append(render_state(scene, pose, cap.rgb_intrinsics[t], w, h, q=q0)[0])
         depth.append(render_state(scene, pose, cap.depth_intrinsics[t], dw, dh, q=q0)[1])
     kw = {}
@@ -108,5 +110,6 @@ def synthetic_residual_data(
     return make_residual_data(
         rgb_pred=np.stack(rgb), rgb_meas=cap.rgb, rgb_intrinsics=cap.rgb_intrinsics,
         depth_pred=np.stack(depth), depth_meas=cap.depth, depth_confidence=cap.confidence,
-        depth_sigma=depth_sigma, timestamps=cap.timestamps, **kw,
+        depth_sigma=depth_sigma, timestamps=cap.timestamps, depth_intrinsics=cap.depth_intrinsics,
+        world_from_camera=cap.world_from_camera, **kw,
     )

@@ -15,19 +15,23 @@ _SCENES: dict[str, object] = {}
 _DATA: dict[str, object] = {}
 
 
-def scene(furniture: str = "door", effects: tuple = (), seed: int = 7):
-    """A tiny scene, cached (specs hold dicts and are unhashable: the cache keys on their repr)."""
-    spec = replace(BASE, furniture=furniture, effects=effects, seed=seed)
+def scene(furniture: str = "door", effects: tuple = (), seed: int = 7, **overrides):
+    """A tiny scene, cached (specs hold dicts and are unhashable: the cache keys on their repr).
+
+    ``overrides`` replace more ``SceneSpec`` fields, e.g. ``static_stride=1`` (consecutive 30 fps
+    frames: the timing effects need poses dense enough to follow the camera through hand shake).
+    """
+    spec = replace(BASE, furniture=furniture, effects=effects, seed=seed, **overrides)
     if repr(spec) not in _SCENES:
         _SCENES[repr(spec)] = generate_scene(spec)
     return _SCENES[repr(spec)]
 
 
-def residual_data(furniture: str = "door", effects: tuple = (), seed: int = 7):
+def residual_data(furniture: str = "door", effects: tuple = (), seed: int = 7, **overrides):
     """The scene's static RGB-D against clean renders, and part 0's tracks against the nominal joint."""
-    key = repr((furniture, effects, seed))
+    key = repr((furniture, effects, seed, sorted(overrides.items())))
     if key not in _DATA:
-        _DATA[key] = synthetic_residual_data(scene(furniture, effects, seed))
+        _DATA[key] = synthetic_residual_data(scene(furniture, effects, seed, **overrides))
     return _DATA[key]
 
 
