@@ -172,6 +172,21 @@ class GaussianCheckpoint(Artifact):
     )
     labels: Array("int32", "N") = Field(description="Part label per Gaussian: 0 background, 1 interior, 2 + k part k, [N].")
     step: int = Field(default=0, description="Optimisation steps taken to produce it.")
+    sensor_effects: list[str] = Field(
+        default_factory=list, description="Camera effects learned with the Gaussians (empty = an ideal camera)."
+    )
+    sensor_frames: Array("int64", "V") | None = Field(
+        default=None, description="Frame indices (positions in the capture) the per-frame gains belong to, ascending, [V]."
+    )
+    sensor_log_gain: Array("float64", "V 3") | None = Field(
+        default=None, description="Natural log of the per-frame linear-RGB gain, [V, 3] (exposure and white balance)."
+    )
+    sensor_offset: Array("float64", "V 3") | None = Field(default=None, description="Per-frame linear-RGB offset, [V, 3].")
+    sensor_vignetting: list[float] | None = Field(
+        default=None, description="(c1, c2) of the radial gain 1 + c1 r^2 + c2 r^4, r = 1 at the farthest corner."
+    )
+    depth_scale: float = Field(default=1.0, description="The depth sensor's scale error: measured = scale * true + offset.")
+    depth_offset_m: float = Field(default=0.0, description="The depth sensor's offset error, metres.")
 
 
 # ----------------------------------------------------------------------------------------------

@@ -6,6 +6,8 @@ Each field maps onto a field of the frozen dataclasses in ``artitwin_core.recons
 
 from __future__ import annotations
 
+from typing import Literal
+
 from pydantic import Field
 
 from schemas._base import StageConfig
@@ -50,3 +52,9 @@ class ReconstructConfig(StageConfig):
     grad_threshold: float = Field(default=2e-4, gt=0, description="Densification threshold on the mean NDC gradient norm.")
     backend: str = Field(default="auto", description="Rasterizer backend: auto, cpu or cuda.")
     seed: int = Field(default=0, description="Seed of the view order and split samples.")
+    sensor_effects: list[Literal["exposure_white_balance", "vignetting", "depth_scale_offset"]] = Field(
+        default_factory=list,
+        description="Camera effects learned with the Gaussians (see docs/effects.md): per-frame exposure and white "
+        "balance, vignetting, an affine depth error. Empty = an ideal camera. The diagnosis names the ones a "
+        "recording needs; `artitwin run --effect NAME` enables one.",
+    )

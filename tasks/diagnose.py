@@ -41,6 +41,7 @@ from schemas._diagnose import (
     ViewPrediction,
 )
 from tasks._convert import to_core
+from tasks.reconstruct import sensor_model
 from tasks._stage import stage
 
 STATIC_SCOPE = "static recording"
@@ -48,8 +49,10 @@ STATIC_SCOPE = "static recording"
 
 @stage(name="predict_views", version=1, config=PredictViewsConfig, output=ViewPrediction)
 def predict_views(capture: CaptureArtifact, checkpoint: GaussianCheckpoint, config: PredictViewsConfig) -> ViewPrediction:
-    """Render the Gaussians at the capture's recorded poses: RGB at RGB size, depth at depth size."""
+    """Render the Gaussians at the capture's recorded poses: RGB at RGB size, depth at depth size,
+    through the sensor model learned with them (exposure, vignetting, depth error) when there is one."""
     params = to_core(GaussianParams, checkpoint)
+    sensor = sensor_model(checkpoint)  # the camera effects the twin models, learned with it
     _, h, w, _ = capture.rgb.shape
     _, dh, dw = capture.depth.shape
     rgb, depth, cover = [], [], []
@@ -57,6 +60,8 @@ def predict_views(capture: CaptureArtifact, checkpoint: GaussianCheckpoint, conf
         pose = capture.world_from_camera[t]
         colour, _, alpha = render_view(params, pose, capture.rgb_intrinsics[t], w, h, backend=config.backend)
         _, z, alpha_d = render_view(params, pose, capture.depth_intrinsics[t], dw, dh, backend=config.backend)
+        if sensor is not None:
+            colour, z = sensor.apply_rgb(colour, t, capture.rgb_intrinsics[t]), sensor.apply_depth(z)
         rgb.append(np.round(np.clip(colour, 0, 1) * 255).astype(np.uint8))
         depth.append(np.where(alpha_d >= config.min_alpha, z, np.nan).astype(np.float32))
         cover.append(alpha >= config.min_alpha)
@@ -99,6 +104,7 @@ def _sensor_data(capture: CaptureArtifact, prediction: ViewPrediction, config: D
         rgb_mask=prediction.coverage, depth_pred=prediction.depth, depth_meas=capture.depth,
         depth_confidence=capture.confidence, depth_sigma=(config.depth_sigma_a_m, config.depth_sigma_b_per_m),
         min_confidence=config.min_confidence, timestamps=capture.timestamps,
+        depth_intrinsics=capture.depth_intrinsics, world_from_camera=capture.world_from_camera,
     )
 
 
@@ -211,7 +217,7 @@ def report_from_sections(sections: list[tuple[str, Diagnosis, ResidualData]], ti
     )
 
 
-@stage(name="diagnose", version=2, config=DiagnoseConfig, output=DiagnosisReport)
+@stage(name="diagnose", version=3, config=DiagnoseConfig, output=DiagnosisReport)
 def diagnose_twin(
     capture: CaptureArtifact,
     prediction: ViewPrediction,

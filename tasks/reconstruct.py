@@ -14,6 +14,7 @@ from artitwin_core.capture import Capture
 from artitwin_core.gaussians import GaussianParams
 from artitwin_core.reconstruction import (
     InitConfig,
+    SensorModel,
     PoseRefineConfig,
     TrainConfig,
     TrainState,
@@ -55,6 +56,37 @@ def train_config(config: ReconstructConfig) -> TrainConfig:
         grad_threshold=config.grad_threshold,
         backend=config.backend,
         seed=config.seed,
+        sensor_effects=tuple(config.sensor_effects),
+    )
+
+
+def sensor_fields(model: SensorModel | None) -> dict:
+    """A learned sensor model as ``GaussianCheckpoint`` fields (none for an ideal camera)."""
+    if model is None:
+        return {}
+    return {
+        "sensor_effects": list(model.effects),
+        "sensor_frames": model.frames.astype(np.int64),
+        "sensor_log_gain": model.log_gain,
+        "sensor_offset": model.offset,
+        "sensor_vignetting": None if model.vignetting is None else list(model.vignetting),
+        "depth_scale": model.depth_scale,
+        "depth_offset_m": model.depth_offset_m,
+    }
+
+
+def sensor_model(checkpoint: GaussianCheckpoint) -> SensorModel | None:
+    """The sensor model stored with a checkpoint, None when it was trained for an ideal camera."""
+    if not checkpoint.sensor_effects:
+        return None
+    return SensorModel(
+        effects=tuple(checkpoint.sensor_effects),
+        frames=np.zeros(0, np.int64) if checkpoint.sensor_frames is None else np.asarray(checkpoint.sensor_frames),
+        log_gain=checkpoint.sensor_log_gain,
+        offset=checkpoint.sensor_offset,
+        vignetting=None if checkpoint.sensor_vignetting is None else tuple(checkpoint.sensor_vignetting),
+        depth_scale=checkpoint.depth_scale,
+        depth_offset_m=checkpoint.depth_offset_m,
     )
 
 
@@ -98,7 +130,7 @@ def reconstruct_canonical(capture: CaptureArtifact, poses: CameraPoses, config: 
     views = make_views(cap, cap.world_from_camera, train_frames, config.min_confidence)
     state = TrainState.from_params(params0, scene_extent(cap.world_from_camera[train_frames]))
     train(state, views, tcfg)
-    return to_artifact(GaussianCheckpoint, state.to_params(), step=state.step)
+    return to_artifact(GaussianCheckpoint, state.to_params(), step=state.step, **sensor_fields(state.sensor_model()))
 
 
 @stage(name="reconstruct_report", version=1, config=ReconstructConfig, output=StageReport)
@@ -109,7 +141,8 @@ def reconstruct_report(
     cap = _with_poses(capture, poses)
     params = to_core(GaussianParams, gaussians)
     _, test_frames = split_frames(cap.num_frames, config.holdout_every)
-    ev = evaluate_views(params, cap, cap.world_from_camera, test_frames, backend=config.backend)
+    sensor = sensor_model(gaussians)
+    ev = evaluate_views(params, cap, cap.world_from_camera, test_frames, backend=config.backend, sensor=sensor)
     summary = ev.summary()
     metrics = {
         "gaussians_count": float(params.num_gaussians),
@@ -121,6 +154,18 @@ def reconstruct_report(
     }
     notes = []
     per_frame: dict[str, list[float]] = {}
+    if sensor is not None:
+        notes.append(f"Sensor model learned with the Gaussians: {', '.join(sensor.effects)}.")
+        if sensor.log_gain is not None:
+            stops = sensor.log_gain.mean(1) / np.log(2.0)
+            metrics["sensor_exposure_stops_std"] = float(np.std(stops))
+            metrics["sensor_white_balance_rb_std"] = float(np.std(np.exp(sensor.log_gain[:, [0, 2]] - sensor.log_gain[:, 1:2])))
+            per_frame["sensor_exposure_stops"] = stops.tolist()
+        if sensor.vignetting is not None:
+            metrics["sensor_vignetting_corner_falloff"] = float(-(sensor.vignetting[0] + sensor.vignetting[1]))
+        if "depth_scale_offset" in sensor.effects:
+            metrics["sensor_depth_scale"] = sensor.depth_scale
+            metrics["sensor_depth_offset_m"] = sensor.depth_offset_m
     if poses.correction_translation is None:
         notes.append("Pose refinement did not run or fell back (low texture?): the capture poses were used.")
     else:

@@ -19,6 +19,7 @@ from artitwin_core.reconstruction._init import init_gaussians
 from artitwin_core.reconstruction._pipeline import Reconstruction, reconstruct
 from artitwin_core.reconstruction._ply import read_ply, write_ply
 from artitwin_core.reconstruction._poses import PoseRefinement, pose_difference, refine_poses
+from artitwin_core.reconstruction._sensor import SENSOR_EFFECTS, SensorModel
 from artitwin_core.reconstruction._train import (
     TrainState,
     TrainViews,
@@ -29,6 +30,8 @@ from artitwin_core.reconstruction._train import (
 )
 
 __all__ = [
+    "SENSOR_EFFECTS",
+    "SensorModel",
     "EvalResult",
     "InitConfig",
     "PoseRefineConfig",

@@ -9,6 +9,7 @@ from __future__ import annotations
 from dataclasses import dataclass, field
 
 from artitwin_core._errors import InputError
+from artitwin_core.reconstruction._sensor import check_sensor_effects
 
 
 @dataclass(frozen=True)
@@ -102,6 +103,9 @@ class TrainConfig:
         background: RGB in [0, 1] behind everything.
         backend: rasterizer backend (``"auto"``, ``"cpu"``, ``"cuda"``).
         seed: random view order and split samples.
+        sensor_effects: camera effects learned with the Gaussians (``_sensor.SENSOR_EFFECTS``:
+            exposure_white_balance, vignetting, depth_scale_offset); empty = an ideal camera.
+        lr_sensor: Adam learning rate of the sensor parameters (the depth scale and offset take a tenth).
     """
 
     steps: int = 1500
@@ -130,6 +134,8 @@ class TrainConfig:
     background: tuple[float, float, float] = (0.0, 0.0, 0.0)
     backend: str = "auto"
     seed: int = 0
+    sensor_effects: tuple[str, ...] = ()
+    lr_sensor: float = 0.01
 
     @classmethod
     def with_schedule(cls, steps: int, **overrides) -> TrainConfig:
@@ -155,6 +161,10 @@ class TrainConfig:
             raise InputError(f"TrainConfig.sh_degree is {self.sh_degree}; use 0..3.")
         if not 0.0 <= self.lambda_dssim <= 1.0:
             raise InputError(f"TrainConfig.lambda_dssim is {self.lambda_dssim}; use a value in [0, 1].")
+        try:
+            object.__setattr__(self, "sensor_effects", check_sensor_effects(self.sensor_effects))
+        except ValueError as e:
+            raise InputError(f"TrainConfig.{e}") from None
 
 
 @dataclass(frozen=True)

@@ -12,6 +12,7 @@ from artitwin_core.capture import Capture
 from artitwin_core.gaussians import GaussianParams, rasterize
 from artitwin_core.geometry import invert_se3
 from artitwin_core.reconstruction._losses import psnr, ssim
+from artitwin_core.reconstruction._sensor import SensorModel
 from artitwin_core.reconstruction._train import depth_on_rgb_grid
 
 
@@ -91,6 +92,7 @@ def evaluate_views(
     gt_depth: np.ndarray | None = None,
     background: Sequence[float] = (0.0, 0.0, 0.0),
     backend: str = "auto",
+    sensor: SensorModel | None = None,
 ) -> EvalResult:
     """PSNR, SSIM and depth errors of ``params`` rendered at ``frames``.
 
@@ -101,6 +103,9 @@ def evaluate_views(
         frames: frame indices to evaluate (the held-out ones).
         gt_depth: optional ``[T, H, W]`` ground-truth z-depth at RGB resolution (NaN = no surface),
             for the ``depth_mae_gt_m`` metric.
+        sensor: the learned sensor model, applied to the renders before they are compared with
+            the recording (a frame it was not trained on gets gains interpolated in time); the
+            ground-truth depth is compared with the rendered (true) depth.
     """
     frames = [int(f) for f in frames]
     _, h, w, _ = capture.rgb.shape
@@ -109,13 +114,17 @@ def evaluate_views(
         rgb, depth, alpha = render_view(
             params, world_from_camera[t], capture.rgb_intrinsics[t], w, h, background=background, backend=backend
         )
+        sensor_depth = depth
+        if sensor is not None:
+            rgb = sensor.apply_rgb(rgb, t, capture.rgb_intrinsics[t])
+            sensor_depth = sensor.apply_depth(depth)
         target = torch.from_numpy(capture.rgb[t].astype(np.float32) / 255.0)
         r = torch.from_numpy(rgb)
         ps.append(psnr(r, target))
         ss.append(float(ssim(r, target)))
         sd, sw = depth_on_rgb_grid(capture, t)
         m = sw > 0
-        dm.append(float(np.abs(depth[m] - sd[m]).mean()) if m.any() else float("nan"))
+        dm.append(float(np.abs(sensor_depth[m] - sd[m]).mean()) if m.any() else float("nan"))
         if gt_depth is not None:
             g = gt_depth[t]
             m = np.isfinite(g) & (g > 0)

@@ -14,6 +14,7 @@ from artitwin_core.reconstruction._config import ReconstructionConfig, split_fra
 from artitwin_core.reconstruction._evaluate import EvalResult, evaluate_views
 from artitwin_core.reconstruction._init import init_gaussians
 from artitwin_core.reconstruction._poses import PoseRefinement, refine_poses
+from artitwin_core.reconstruction._sensor import SensorModel
 from artitwin_core.reconstruction._train import TrainState, make_views, scene_extent, train
 
 
@@ -30,6 +31,7 @@ class Reconstruction:
         steps: optimisation steps taken.
         losses: ``[steps]`` training loss per step.
         seconds: wall time per phase: ``poses``, ``init``, ``train``, ``evaluate``.
+        sensor: the learned sensor model (``TrainConfig.sensor_effects``), None for an ideal camera.
     """
 
     params: GaussianParams
@@ -41,6 +43,7 @@ class Reconstruction:
     steps: int
     losses: np.ndarray
     seconds: dict[str, float]
+    sensor: SensorModel | None = None
 
 
 def reconstruct(
@@ -77,9 +80,10 @@ def reconstruct(
 
     t0 = time.perf_counter()
     params = state.to_params()
+    sensor = state.sensor_model()
     evaluation = evaluate_views(
         params, capture, poses.world_from_camera, test_frames, gt_depth=gt_depth,
-        background=config.train.background, backend=config.train.backend,
+        background=config.train.background, backend=config.train.backend, sensor=sensor,
     )  # fmt: skip
     seconds["evaluate"] = time.perf_counter() - t0
     return Reconstruction(
@@ -92,4 +96,5 @@ def reconstruct(
         steps=state.step,
         losses=np.asarray(state.losses),
         seconds=seconds,
+        sensor=sensor,
     )

@@ -22,6 +22,7 @@ from artitwin_core.gaussians import LABEL_BACKGROUND, GaussianParams, rasterize
 from artitwin_core.geometry import invert_se3
 from artitwin_core.reconstruction._config import TrainConfig
 from artitwin_core.reconstruction._losses import depth_l1, photometric_loss
+from artitwin_core.reconstruction._sensor import SensorModel, SensorParams
 
 PARAM_NAMES = ("means", "quats_wxyz", "log_scales", "opacity_logits", "sh_dc", "sh_rest")
 _ADAM_BETAS = (0.9, 0.999)
@@ -118,6 +119,8 @@ class TrainState:
         grad_count: ``[N]`` views each Gaussian was visible in since then.
         max_radii: ``[N]`` largest screen radius (pixels) since then.
         losses: the total loss of every step taken.
+        sensor: the learned sensor model's parameters (``TrainConfig.sensor_effects``), created
+            at the first step; None for an ideal camera.
     """
 
     params: dict[str, torch.Tensor]
@@ -129,6 +132,7 @@ class TrainState:
     grad_count: torch.Tensor
     max_radii: torch.Tensor
     losses: list[float] = field(default_factory=list)
+    sensor: SensorParams | None = None
 
     @classmethod
     def from_params(cls, params: GaussianParams, extent: float) -> TrainState:
@@ -157,6 +161,10 @@ class TrainState:
     @property
     def num_gaussians(self) -> int:
         return int(self.params["means"].shape[0])
+
+    def sensor_model(self) -> SensorModel | None:
+        """The learned sensor model (None when no sensor effect was trained)."""
+        return self.sensor.to_model() if self.sensor else None
 
     def to_params(self) -> GaussianParams:
         """The current model as ``GaussianParams`` (numpy copies; labels all background)."""
@@ -223,15 +231,25 @@ def train_step(state: TrainState, views: TrainViews, config: TrainConfig) -> flo
         current_sh_degree(state.step, config), config,
     )  # fmt: skip
     out.retain_means2d_grad()
-    loss = photometric_loss(out.rgb, views.rgb[v], config.lambda_dssim)
+    if config.sensor_effects and state.sensor is None:
+        state.sensor = SensorParams(config.sensor_effects, views.frames, views.intrinsics, w, h)
+    sensor = state.sensor
+    rgb = sensor.rgb(out.rgb, v) if sensor else out.rgb
+    loss = photometric_loss(rgb, views.rgb[v], config.lambda_dssim)
     if config.depth_weight > 0:
-        loss = loss + config.depth_weight * depth_l1(out.expected_depth(), views.depth[v], views.depth_weight[v])
+        depth = out.expected_depth()
+        depth = sensor.depth(depth) if sensor else depth
+        loss = loss + config.depth_weight * depth_l1(depth, views.depth[v], views.depth_weight[v])
     for p in state.params.values():
         p.grad = None
+    if sensor:
+        sensor.zero_grad()
     loss.backward()
     with torch.no_grad():
         _accumulate_stats(state, out, w, h)
         _adam_update(state, config)
+        if sensor:
+            sensor.adam_step(state.step, config.lr_sensor)
     state.step += 1
     state.losses.append(float(loss.detach()))
     s = state.step

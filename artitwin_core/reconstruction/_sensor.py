@@ -1,0 +1,204 @@
+"""The camera's own effects on what it records, learned alongside the Gaussians when enabled.
+
+The Gaussians model the scene; the sensor model maps what they render to what this camera
+recorded. Three effects of the diagnosis catalog (``artitwin_core.diagnostics``) can be modelled
+here, each a switch in ``TrainConfig.sensor_effects``:
+
+- ``exposure_white_balance``: per-frame, per-channel gain ``g`` and offset ``o`` on linear RGB,
+  ``measured = g * rendered + o`` (auto exposure, auto white balance). The first training view
+  is the reference (``g = 1``, ``o = 0``): without it a global gain and the Gaussians' colours
+  trade off freely. A frame not trained on (held out) gets its gains interpolated in time
+  between its neighbours (log gain, by frame index): auto exposure is smooth in time, and the
+  held-out frame's own pixels are never used to fit them.
+- ``vignetting``: a radial gain ``1 + c1 r^2 + c2 r^4`` on linear RGB, shared by every frame,
+  ``r`` the distance from the principal point over the distance to the farthest image corner.
+- ``depth_scale_offset``: an affine depth error of the sensor, ``measured = s * true + o``
+  (metres); the Gaussians stay metric (the capture's poses fix the scale through the images).
+
+Both torch (training) and numpy (rendering a trained model) forms are here, with the same
+formulas, so what was trained is what is predicted.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+import torch
+
+SENSOR_EFFECTS = ("exposure_white_balance", "vignetting", "depth_scale_offset")
+
+
+def check_sensor_effects(effects) -> tuple[str, ...]:
+    """The effects as a sorted tuple; ``ValueError`` naming an unknown one and the known ones."""
+    out = tuple(sorted(set(effects)))
+    unknown = [e for e in out if e not in SENSOR_EFFECTS]
+    if unknown:
+        raise ValueError(
+            f"sensor_effects: {unknown} cannot be modelled by the reconstruction; it models {list(SENSOR_EFFECTS)}."
+        )
+    return out
+
+
+# -- colour spaces (the IEC 61966-2-1 sRGB curve, extended linearly below 0) -------------------
+
+
+def srgb_to_linear_t(x: torch.Tensor) -> torch.Tensor:
+    hi = ((x.clamp(min=0.04045) + 0.055) / 1.055) ** 2.4
+    return torch.where(x <= 0.04045, x / 12.92, hi)
+
+
+def linear_to_srgb_t(x: torch.Tensor) -> torch.Tensor:
+    hi = 1.055 * x.clamp(min=0.0031308) ** (1 / 2.4) - 0.055
+    return torch.where(x <= 0.0031308, 12.92 * x, hi)
+
+
+def _srgb_to_linear(x: np.ndarray) -> np.ndarray:
+    return np.where(x <= 0.04045, x / 12.92, ((np.maximum(x, 0.04045) + 0.055) / 1.055) ** 2.4)
+
+
+def _linear_to_srgb(x: np.ndarray) -> np.ndarray:
+    return np.where(x <= 0.0031308, 12.92 * x, 1.055 * np.maximum(x, 0.0031308) ** (1 / 2.4) - 0.055)
+
+
+def radius_sq(intrinsics, width: int, height: int) -> np.ndarray:
+    """``[H, W]`` squared radius from the principal point over the farthest corner's (as the catalog's)."""
+    cx, cy = float(intrinsics[2]), float(intrinsics[3])
+    u, v = np.meshgrid(np.arange(width, dtype=np.float64), np.arange(height, dtype=np.float64))
+    r2max = max((x - cx) ** 2 + (y - cy) ** 2 for x, y in ((0, 0), (width - 1, 0), (0, height - 1), (width - 1, height - 1)))
+    return ((u - cx) ** 2 + (v - cy) ** 2) / r2max
+
+
+@dataclass(frozen=True)
+class SensorModel:
+    """A learned sensor model (see the module docstring). Effects not enabled are ``None``.
+
+    Attributes:
+        effects: the enabled effect names.
+        frames: ``[V]`` frame indices (0-based positions in the capture, not its frame ids) the
+            per-frame gains were learned on, ascending.
+        log_gain: ``[V, 3]`` natural log of the linear RGB gain per frame (None: no exposure model).
+        offset: ``[V, 3]`` linear RGB offset per frame.
+        vignetting: ``(c1, c2)`` radial gain coefficients (None: no vignetting model).
+        depth_scale, depth_offset_m: the sensor's affine depth error.
+    """
+
+    effects: tuple[str, ...]
+    frames: np.ndarray
+    log_gain: np.ndarray | None = None
+    offset: np.ndarray | None = None
+    vignetting: tuple[float, float] | None = None
+    depth_scale: float = 1.0
+    depth_offset_m: float = 0.0
+
+    def frame_gain(self, frame: int) -> tuple[np.ndarray, np.ndarray]:
+        """``(gain [3], offset [3])`` of frame index ``frame``: learned, or interpolated in time."""
+        if self.log_gain is None or len(self.frames) == 0:
+            return np.ones(3), np.zeros(3)
+        f = self.frames.astype(np.float64)
+        lg = np.array([np.interp(frame, f, self.log_gain[:, c]) for c in range(3)])
+        off = np.array([np.interp(frame, f, self.offset[:, c]) for c in range(3)])
+        return np.exp(lg), off
+
+    def apply_rgb(self, rgb: np.ndarray, frame: int, intrinsics) -> np.ndarray:
+        """What the camera records of a rendered sRGB image ``[H, W, 3]`` in [0, 1] at ``frame``."""
+        if self.log_gain is None and self.vignetting is None:
+            return rgb
+        lin = _srgb_to_linear(rgb.astype(np.float64))
+        gain, off = self.frame_gain(frame)
+        lin = lin * gain + off
+        if self.vignetting is not None:
+            r2 = radius_sq(intrinsics, rgb.shape[1], rgb.shape[0])
+            lin = lin * (1.0 + self.vignetting[0] * r2 + self.vignetting[1] * r2**2)[..., None]
+        return np.clip(_linear_to_srgb(lin), 0.0, 1.0).astype(np.float32)
+
+    def apply_depth(self, depth: np.ndarray) -> np.ndarray:
+        """What the depth sensor records of rendered z-depth (0 and NaN stay as they are)."""
+        if "depth_scale_offset" not in self.effects:
+            return depth
+        ok = np.isfinite(depth) & (depth > 0)
+        return np.where(ok, self.depth_scale * depth + self.depth_offset_m, depth).astype(depth.dtype)
+
+
+class SensorParams:
+    """The trainable form: leaf tensors with their own Adam moments, one row per training view."""
+
+    def __init__(self, effects, frames, intrinsics: np.ndarray, width: int, height: int) -> None:
+        self.effects = check_sensor_effects(effects)
+        self.frames = [int(f) for f in frames]
+        v = len(self.frames)
+        self.params: dict[str, torch.Tensor] = {}
+        if "exposure_white_balance" in self.effects:
+            self.params["log_gain"] = torch.zeros(v, 3)
+            self.params["offset"] = torch.zeros(v, 3)
+        if "vignetting" in self.effects:
+            self.params["vignetting"] = torch.zeros(2)
+            self._r2 = [torch.from_numpy(radius_sq(k, width, height).astype(np.float32)) for k in intrinsics]
+        if "depth_scale_offset" in self.effects:
+            self.params["depth_affine"] = torch.tensor([1.0, 0.0])
+        for p in self.params.values():
+            p.requires_grad_(True)
+        self.exp_avg = {k: torch.zeros_like(p) for k, p in self.params.items()}
+        self.exp_avg_sq = {k: torch.zeros_like(p) for k, p in self.params.items()}
+
+    def __bool__(self) -> bool:
+        return bool(self.params)
+
+    def rgb(self, render: torch.Tensor, view: int) -> torch.Tensor:
+        """The recorded sRGB ``[H, W, 3]`` of a rendered one at training view ``view``."""
+        if "log_gain" not in self.params and "vignetting" not in self.params:
+            return render
+        lin = srgb_to_linear_t(render)
+        if "log_gain" in self.params and view != 0:  # view 0 is the reference
+            lin = lin * torch.exp(self.params["log_gain"][view]) + self.params["offset"][view]
+        if "vignetting" in self.params:
+            c = self.params["vignetting"]
+            r2 = self._r2[view]
+            lin = lin * (1.0 + c[0] * r2 + c[1] * r2 * r2)[..., None]
+        return linear_to_srgb_t(lin)
+
+    def depth(self, depth: torch.Tensor) -> torch.Tensor:
+        if "depth_affine" not in self.params:
+            return depth
+        s, o = self.params["depth_affine"]
+        return torch.where(depth > 0, s * depth + o, depth)
+
+    def zero_grad(self) -> None:
+        for p in self.params.values():
+            p.grad = None
+
+    @torch.no_grad()
+    def adam_step(self, step: int, lr: float, betas=(0.9, 0.999), eps: float = 1e-15) -> None:
+        """Adam on the parameters that got a gradient (per-view rows only see their own steps)."""
+        b1, b2 = betas
+        for name, p in self.params.items():
+            if p.grad is None:
+                continue
+            m, v = self.exp_avg[name], self.exp_avg_sq[name]
+            m.mul_(b1).add_(p.grad, alpha=1 - b1)
+            v.mul_(b2).addcmul_(p.grad, p.grad, value=1 - b2)
+            t = step + 1
+            # The depth scale is shared by every view and multiplies metres: a smaller step keeps it
+            # from chasing one view's noise.
+            scale = 0.1 if name == "depth_affine" else 1.0
+            p.sub_(scale * lr * (m / (1 - b1**t)) / ((v / (1 - b2**t)).sqrt() + eps))
+
+    def to_model(self) -> SensorModel:
+        p = {k: v.detach().cpu().numpy().astype(np.float64) for k, v in self.params.items()}
+        order = np.argsort(self.frames)
+        log_gain = offset = None
+        if "log_gain" in p:
+            lg, off = p["log_gain"].copy(), p["offset"].copy()
+            lg[0], off[0] = 0.0, 0.0  # the reference view
+            log_gain, offset = lg[order], off[order]
+        da = p.get("depth_affine", np.array([1.0, 0.0]))
+        vig = p.get("vignetting")
+        return SensorModel(
+            effects=self.effects,
+            frames=np.asarray(self.frames, np.int64)[order],
+            log_gain=log_gain,
+            offset=offset,
+            vignetting=None if vig is None else (float(vig[0]), float(vig[1])),
+            depth_scale=float(da[0]),
+            depth_offset_m=float(da[1]),
+        )
