@@ -68,6 +68,21 @@ class JointConfig(StageConfig):
     min_motion_m: float = Field(default=0.002, ge=0, description="Below this RMS displacement the part counts as not moving, metres.")
     screw_bic_margin: float = Field(default=10.0, ge=0, description="BIC units a screw joint must beat a revolute one by.")
     seed: int = Field(default=0, description="RANSAC random seed.")
+    model_screw: bool = Field(
+        default=False,
+        description="Fit every rotating part as a screw joint (rotation with coupled travel along its axis) instead "
+        "of testing the pitch for significance: the 'screw_joint' effect enabled.",
+    )
+
+
+# The stage whose forward model gains each catalog effect when a user enables it
+# (``PipelineConfig.with_effects``). The other catalog effects are diagnosed only.
+EFFECT_STAGES: dict[str, str] = {
+    "exposure_white_balance": "reconstruct",
+    "vignetting": "reconstruct",
+    "depth_scale_offset": "reconstruct",
+    "screw_joint": "fit_joints",
+}
 
 
 class PipelineConfig(StageConfig):
@@ -89,6 +104,33 @@ class PipelineConfig(StageConfig):
     )
     diagnose: DiagnoseConfig = Field(default_factory=DiagnoseConfig, description="Model against measurement: effect ranking.")
     export: ExportConfig = Field(default_factory=ExportConfig, description="URDF / MJCF / splat export and the simulator check.")
+
+    def with_effects(self, names) -> PipelineConfig:
+        """This config with the physical effects ``names`` (from the diagnosis catalog) enabled in
+        the stages that model them (``EFFECT_STAGES``). Only those stages' configs change, so a rerun
+        reuses every cached artifact upstream of them. ``ValueError`` names an effect no stage models."""
+        names = list(dict.fromkeys(names))
+        unknown = [n for n in names if n not in EFFECT_STAGES]
+        if unknown:
+            raise ValueError(
+                f"no stage models the effect(s) {unknown} yet; effects that can be enabled: {sorted(EFFECT_STAGES)} "
+                "(the diagnosis still ranks the others and reports their fitted parameters)."
+            )
+        update: dict = {}
+        sensor = [n for n in names if EFFECT_STAGES[n] == "reconstruct"]
+        if sensor:
+            merged = sorted(set(self.reconstruct.sensor_effects) | set(sensor))
+            update["reconstruct"] = self.reconstruct.model_copy(update={"sensor_effects": merged})
+        if "screw_joint" in names:
+            update["fit_joints"] = self.fit_joints.model_copy(update={"model_screw": True})
+        return self.model_copy(update=update)
+
+    def enabled_effects(self) -> list[str]:
+        """The catalog effects this config models (the inverse of ``with_effects``)."""
+        out = list(self.reconstruct.sensor_effects)
+        if self.fit_joints.model_screw:
+            out.append("screw_joint")
+        return sorted(out)
 
     @classmethod
     def preset(cls, name: str) -> PipelineConfig:

@@ -16,8 +16,13 @@ def _fit_config(config: JointConfig) -> JointFitConfig:
         ransac_iterations=config.ransac_iterations,
         ransac_threshold_m=config.ransac_threshold_m,
         min_motion_m=config.min_motion_m,
-        screw_bic_margin=config.screw_bic_margin,
         seed=config.seed,
+        # The screw_joint effect enabled: a rotating part is a screw whatever its pitch's significance.
+        **(
+            {"screw_bic_margin": float("-inf"), "min_screw_travel_m": 0.0, "screw_min_pitch_t": 0.0}
+            if config.model_screw
+            else {"screw_bic_margin": config.screw_bic_margin}
+        ),
     )
 
 
