@@ -82,6 +82,10 @@ class ViewPrediction(Artifact):
         default=None, description="Pixels the prediction covers (e.g. render opacity > 0.5), [T, H, W]; None = all."
     )
     frame_ids: Array("int64", "T") = Field(description="Frame numbers of the capture these predictions are for, [T].")
+    world_from_camera: Array("float64", "T 4 4") | None = Field(
+        default=None,
+        description="The camera poses the prediction was rendered at (the twin's, e.g. refined), [T, 4, 4]; None = the capture's.",
+    )
 
 
 class EffectFinding(Artifact):

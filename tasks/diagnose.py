@@ -32,7 +32,7 @@ from artitwin_core.diagnostics._report import residual_maps
 from artitwin_core.gaussians import GaussianParams
 from artitwin_core.joints import Joint
 from artitwin_core.reconstruction import render_view
-from schemas import CaptureArtifact, GaussianCheckpoint, JointSet, ReportImage, TrajectoriesArtifact
+from schemas import CameraPoses, CaptureArtifact, GaussianCheckpoint, JointSet, ReportImage, TrajectoriesArtifact
 from schemas._diagnose import (
     DiagnoseConfig,
     DiagnosisReport,
@@ -47,17 +47,29 @@ from tasks._stage import stage
 STATIC_SCOPE = "static recording"
 
 
-@stage(name="predict_views", version=1, config=PredictViewsConfig, output=ViewPrediction)
-def predict_views(capture: CaptureArtifact, checkpoint: GaussianCheckpoint, config: PredictViewsConfig) -> ViewPrediction:
+@stage(name="predict_views", version=2, config=PredictViewsConfig, output=ViewPrediction)
+def predict_views(
+    capture: CaptureArtifact, poses: CameraPoses, checkpoint: GaussianCheckpoint, config: PredictViewsConfig
+) -> ViewPrediction:
     """Render the Gaussians at the capture's recorded poses: RGB at RGB size, depth at depth size,
-    through the sensor model learned with them (exposure, vignetting, depth error) when there is one."""
+    through the sensor model learned with them (exposure, vignetting, depth error) when there is one.
+
+    The cameras are at ``poses``, the poses the Gaussians were trained with (the refined ones): the
+    prediction is the twin's, camera poses included, so a pose error the refinement left shows up
+    in the residual (pose drift) and one it removed does not.
+    """
+    if poses.world_from_camera.shape[0] != capture.rgb.shape[0] or not np.array_equal(poses.frame_ids, capture.frame_ids):
+        raise InputError(
+            f"predict_views: {poses.world_from_camera.shape[0]} poses for a capture of {capture.rgb.shape[0]} frames "
+            "(or other frame ids); give the poses refined from this capture."
+        )
     params = to_core(GaussianParams, checkpoint)
     sensor = sensor_model(checkpoint)  # the camera effects the twin models, learned with it
     _, h, w, _ = capture.rgb.shape
     _, dh, dw = capture.depth.shape
     rgb, depth, cover = [], [], []
     for t in range(capture.rgb.shape[0]):
-        pose = capture.world_from_camera[t]
+        pose = poses.world_from_camera[t]
         colour, _, alpha = render_view(params, pose, capture.rgb_intrinsics[t], w, h, backend=config.backend)
         _, z, alpha_d = render_view(params, pose, capture.depth_intrinsics[t], dw, dh, backend=config.backend)
         if sensor is not None:
@@ -66,7 +78,7 @@ def predict_views(capture: CaptureArtifact, checkpoint: GaussianCheckpoint, conf
         depth.append(np.where(alpha_d >= config.min_alpha, z, np.nan).astype(np.float32))
         cover.append(alpha >= config.min_alpha)
     return ViewPrediction(rgb=np.stack(rgb), depth=np.stack(depth), coverage=np.stack(cover),
-                          frame_ids=capture.frame_ids.copy())
+                          frame_ids=capture.frame_ids.copy(), world_from_camera=np.asarray(poses.world_from_camera, np.float64))
 
 
 def _json_safe(value):
@@ -104,7 +116,8 @@ def _sensor_data(capture: CaptureArtifact, prediction: ViewPrediction, config: D
         rgb_mask=prediction.coverage, depth_pred=prediction.depth, depth_meas=capture.depth,
         depth_confidence=capture.confidence, depth_sigma=(config.depth_sigma_a_m, config.depth_sigma_b_per_m),
         min_confidence=config.min_confidence, timestamps=capture.timestamps,
-        depth_intrinsics=capture.depth_intrinsics, world_from_camera=capture.world_from_camera,
+        depth_intrinsics=capture.depth_intrinsics,
+        world_from_camera=capture.world_from_camera if prediction.world_from_camera is None else prediction.world_from_camera,
     )
 
 

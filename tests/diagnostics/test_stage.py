@@ -104,7 +104,7 @@ def test_stage_refuses_a_prediction_of_another_size():
 
 
 def test_predict_views_renders_every_frame_at_the_capture_sizes():
-    from schemas import GaussianCheckpoint
+    from schemas import CameraPoses, GaussianCheckpoint
     from schemas._diagnose import PredictViewsConfig
     from tasks.diagnose import predict_views
 
@@ -119,7 +119,9 @@ def test_predict_views_renders_every_frame_at_the_capture_sizes():
         quats_wxyz=np.tile(np.float32([1, 0, 0, 0]), (n, 1)), log_scales=np.full((n, 3), np.log(0.05), np.float32),
         opacity_logits=np.full(n, 3.0, np.float32), sh=(0.3 * rng.standard_normal((n, 1, 3))).astype(np.float32),
         labels=np.zeros(n, np.int32))
-    pred = predict_views(capture, ckpt, PredictViewsConfig(backend="cpu"))
+    poses = CameraPoses(world_from_camera=capture.world_from_camera, frame_ids=capture.frame_ids, frame="canonical")
+    pred = predict_views(capture, poses, ckpt, PredictViewsConfig(backend="cpu"))
+    np.testing.assert_array_equal(pred.world_from_camera, capture.world_from_camera)
     assert pred.rgb.shape == capture.rgb.shape and pred.depth.shape == capture.depth.shape
     assert 0.05 < pred.coverage[0].mean() < 0.99
     assert 0.8 < np.nanmedian(pred.depth[0]) < 2.2  # the blob sits 1.5 m ahead of frame 0
