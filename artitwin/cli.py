@@ -104,9 +104,19 @@ def run(
     preset: Annotated[str, typer.Option("--preset", help="Config preset when no --config: default or quick.")] = "default",
     store: StoreOpt = None,
     prefect: Annotated[bool, typer.Option("--prefect/--no-prefect", help="Run as a Prefect flow (default).")] = True,
+    effect: Annotated[
+        list[str] | None,
+        typer.Option("--effect", help="Model this physical effect (repeatable), e.g. exposure_white_balance: "
+                     "`artitwin diagnose` names the ones a run needs. Cached stages upstream of it are reused."),
+    ] = None,
 ) -> None:
     """Run the whole pipeline on one scene."""
     cfg = _load_config(config, preset)
+    if effect:
+        try:
+            cfg = cfg.with_effects(effect)
+        except ValueError as e:
+            _fail(f"--effect: {e}")
     try:
         summary = _run_scene(scene, out, cfg, store, prefect)
     except ArtiTwinError as e:
@@ -147,6 +157,79 @@ def view(
         serve(path, port=port, joints=joints, labels=labels, residual=residual, export_dir=export_dir, echo=console.print)
     except ArtiTwinError as e:
         _fail(str(e))
+
+
+@app.command()
+def diagnose(
+    run_dir: Annotated[Path, typer.Argument(help="Run folder (artitwin run --out DIR) or its summary.json.")],
+    html_out: Annotated[Path | None, typer.Option("--html", help="Also write the diagnosis report here.")] = None,
+    top: Annotated[int, typer.Option("--top", help="Show this many ranked effects.")] = 12,
+) -> None:
+    """Where the twin fails against the measurement, and which physical effect it is missing."""
+    from flows._runs import diagnosis_of, read_summary
+    from schemas._configs import EFFECT_STAGES
+
+    try:
+        where, summary = read_summary(run_dir)
+        report = diagnosis_of(summary, where)
+    except ArtiTwinError as e:
+        _fail(str(e))
+    if report is None:
+        _fail(f"{where}: this run has no diagnose stage; rerun it with the full pipeline.")
+    modelled = summary.get("effects") or []
+    console.print(f"run {where}: the twin models {', '.join(modelled) or 'an ideal camera and ideal joints'}")
+    table = Table(title="effects, ranked by the residual they explain")
+    for col in ("#", "scope", "effect", "target", "explained", "significant", "enabled", "parameters"):
+        table.add_column(col)
+    for i, f in enumerate(report.findings[:top]):
+        params = ", ".join(f"{k}={v:.3g}" for k, v in f.params.items() if isinstance(v, int | float) and not isinstance(v, bool))
+        table.add_row(str(i + 1), f.scope, f.name, f.target, f"{100 * f.explained_frac:.0f}%",
+                      "yes" if f.significant else "no", "yes" if f.enabled else "", params[:60])
+    Console().print(table)
+    for line in report.conclusion:
+        Console().print(f"- {line}")
+    wanted = sorted({e.split("/", 1)[-1] for e in report.enabled})
+    can = [e for e in wanted if e in EFFECT_STAGES and e not in modelled]
+    cannot = [e for e in wanted if e not in EFFECT_STAGES]
+    scene = summary.get("scene", "SCENE")
+    if can:
+        flags = " ".join(f"--effect {e}" for e in sorted(set(can) | set(modelled)))
+        Console().print(f"rerun with it modelled: artitwin run {scene} {flags} --out {where}-effects  "
+                        f"(then: artitwin compare {where} {where}-effects)")
+    if cannot:
+        Console().print(f"diagnosed but not yet modelled by any stage: {', '.join(cannot)}")
+    if html_out is not None:
+        html_out.parent.mkdir(parents=True, exist_ok=True)
+        html_out.write_text(report.html, encoding="utf-8")
+        console.print(f"report: {html_out}")
+    elif (where / "diagnosis.html").is_file():
+        console.print(f"report: {where / 'diagnosis.html'}")
+
+
+@app.command()
+def compare(
+    before: Annotated[Path, typer.Argument(help="The first run folder (A, 'before').")],
+    after: Annotated[Path, typer.Argument(help="The second run folder of the same scene (B, 'after').")],
+    html_out: Annotated[Path | None, typer.Option("--html", help="Where the comparison report goes (default: B/compare.html).")] = None,
+) -> None:
+    """Compare two runs of one scene: errors before and after, where they were concentrated, held-out frames."""
+    from flows._runs import compare_run_folders
+
+    target = html_out if html_out is not None else (after if after.is_dir() else after.parent) / "compare.html"
+    try:
+        cmp = compare_run_folders(before, after, target)
+    except ArtiTwinError as e:
+        _fail(str(e))
+    table = Table(title=f"A = {cmp.a.name}  vs  B = {cmp.b.name}")
+    for col in ("metric", "A", "B", "change", ""):
+        table.add_column(col)
+    for m in sorted(cmp.metrics, key=lambda m: -abs(m.relative) if m.relative == m.relative else 0)[:20]:
+        pct = f"{100 * m.relative:+.0f}%" if m.relative == m.relative else "n/a"
+        table.add_row(m.name, f"{m.a:.4g}", f"{m.b:.4g}", pct, "better" if m.improved else ("worse" if m.a != m.b else ""))
+    Console().print(table)
+    for line in cmp.conclusion:
+        Console().print(f"- {line}")
+    console.print(f"report: {target}")
 
 
 @app.command()

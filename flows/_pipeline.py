@@ -70,7 +70,7 @@ def scene_pipeline(scene: str | Path, config: PipelineConfig, ex: Executor) -> d
     )
     # Model against measurement: the twin's predictions beside what the sensors measured
     prediction = h["predict_views"] = ex.submit(
-        "predict_views", config.predict_views, {"capture": static, "checkpoint": gaussians}, "static"
+        "predict_views", config.predict_views, {"capture": static, "poses": poses, "checkpoint": gaussians}, "static"
     )
     h["diagnose"] = ex.submit(
         "diagnose",
@@ -108,7 +108,13 @@ def code_version() -> str:
         return version
 
 
-def build_summary(scene: str | Path, store: ArtifactStore, runs: dict[str, StageRun], started: float) -> dict[str, Any]:
+def build_summary(
+    scene: str | Path,
+    store: ArtifactStore,
+    runs: dict[str, StageRun],
+    started: float,
+    config: PipelineConfig | None = None,
+) -> dict[str, Any]:
     """The machine-readable summary of a scene run (documented in docs/summary.md)."""
     stages = {}
     for name, run in runs.items():
@@ -157,6 +163,8 @@ def build_summary(scene: str | Path, store: ArtifactStore, runs: dict[str, Stage
         "stages": stages,
         "joints": joints,
         "exports": {},
+        "effects": config.enabled_effects() if config is not None else [],
+        "config": config.model_dump(mode="json") if config is not None else None,
     }
 
 

@@ -148,7 +148,7 @@ def scene_stages(scene: str, config: PipelineConfig, store: str, out: str | None
     started = time.time()
     ex = PrefectExecutor(store)
     runs = {name: ex.result(h) for name, h in select_pipeline(scene, config, ex, stages).items()}
-    summary = build_summary(scene, ArtifactStore(store), runs, started)
+    summary = build_summary(scene, ArtifactStore(store), runs, started, config)
     if out:
         write_summary(summary, out)
     return summary

@@ -16,7 +16,8 @@ from flows._env import default_store_url
 from flows._pipeline import build_summary, scene_pipeline, write_exports, write_summary
 from flows._runner import StageRun, run_stage
 from infra.store import ArtifactStore, StoreError
-from schemas import PipelineConfig, StageConfig, StageReport
+from schemas import DiagnosisReport, PipelineConfig, StageConfig, StageReport
+from schemas._configs import EFFECT_STAGES
 from tasks import STAGES
 
 # Errors worth retrying: storage hiccups and lock contention. Bad input and bugs are not.
@@ -57,6 +58,20 @@ def _run_and_publish(store_url: str, stage_name: str, config: StageConfig, input
     return run
 
 
+def diagnosis_markdown(report: DiagnosisReport, top: int = 8) -> list[str]:
+    """The diagnosis as Markdown for the Prefect UI: the verdict, the ranked effects, what to rerun with."""
+    lines = [""] + [f"- {c}" for c in report.conclusion]
+    lines += ["", "| # | scope | effect | target | explained | significant | enabled |", "| --- | --- | --- | --- | --- | --- | --- |"]
+    for i, f in enumerate(report.findings[:top]):
+        lines.append(f"| {i + 1} | {f.scope} | {f.name} | {f.target} | {100 * f.explained_frac:.0f}% | "
+                     f"{'yes' if f.significant else 'no'} | {'yes' if f.enabled else ''} |")
+    wanted = sorted({e.split("/", 1)[-1] for e in report.enabled})
+    modelled = [e for e in wanted if e in EFFECT_STAGES]
+    if modelled:
+        lines += ["", "Rerun with the effect modelled: `artitwin run SCENE " + " ".join(f"--effect {e}" for e in modelled) + "`"]
+    return lines
+
+
 def _publish_ui_artifact(store: ArtifactStore, run: StageRun) -> None:
     lines = [f"### {run.stage} ({run.label})", "", f"- key: `{run.key}`", f"- status: {run.status} in {run.seconds:.2f} s"]
     if run.kind == StageReport.kind:
@@ -64,6 +79,8 @@ def _publish_ui_artifact(store: ArtifactStore, run: StageRun) -> None:
         lines += ["", "| metric | value |", "| --- | --- |"]
         lines += [f"| {k} | {v:.6g} |" for k, v in sorted(report.metrics.items())]
         lines += [f"- note: {n}" for n in report.notes]
+    elif run.kind == DiagnosisReport.kind:
+        lines += diagnosis_markdown(store.get(run.key, DiagnosisReport))
     create_markdown_artifact(
         "\n".join(lines),
         key=f"{run.stage}-{run.label}".replace("_", "-").lower(),
@@ -100,7 +117,7 @@ def reconstruct_scene(
     handles = scene_pipeline(scene, config, ex)
     runs = {name: ex.result(h) for name, h in handles.items()}
     st = ArtifactStore(store_url)
-    summary = build_summary(scene, st, runs, started)
+    summary = build_summary(scene, st, runs, started, config)
     if out:
         summary["exports"] = write_exports(st, runs, out)
         write_summary(summary, out)
@@ -117,8 +134,9 @@ def run_scene_inline(
     started = time.time()
     st = ArtifactStore(store or default_store_url())
     ex = InlineExecutor(st)
-    runs = {name: ex.result(h) for name, h in scene_pipeline(scene, config or PipelineConfig(), ex).items()}
-    summary = build_summary(scene, st, runs, started)
+    config = config or PipelineConfig()
+    runs = {name: ex.result(h) for name, h in scene_pipeline(scene, config, ex).items()}
+    summary = build_summary(scene, st, runs, started, config)
     if out is not None:
         summary["exports"] = write_exports(st, runs, out)
         write_summary(summary, out)

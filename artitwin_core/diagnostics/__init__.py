@@ -3,8 +3,9 @@
 ``make_residual_data`` puts a twin's predictions beside a recording; ``compare_frames`` gives
 residual maps and per-frame error curves; ``diagnose`` ranks the registered ``Effect`` plugins by
 the residual they explain and checks the enabled ones on held-out frames (``evaluate_heldout``);
-``write_html_report`` writes it all for a user. User effects are loaded by ``discover_effects``
-(entry points ``artitwin.effects``, env var ``ARTITWIN_EFFECTS``).
+``write_html_report`` writes it all for a user; ``compare_runs`` sets two runs of one scene side
+by side. User effects are loaded by ``discover_effects`` (entry points ``artitwin.effects``, env
+var ``ARTITWIN_EFFECTS``).
 """
 
 from artitwin_core.diagnostics import _camera as _camera  # registers the camera effects
@@ -40,6 +41,7 @@ from artitwin_core.diagnostics._plugin import (
     registered_effects,
 )
 from artitwin_core.diagnostics._report import render_html, write_html_report
+from artitwin_core.diagnostics._runs import RunComparison, RunRecord, compare_runs, comparison_html
 from artitwin_core.diagnostics._residuals import (
     TARGETS,
     ResidualData,
@@ -52,6 +54,10 @@ from artitwin_core.diagnostics._residuals import (
 )
 
 __all__ = [
+    "RunComparison",
+    "RunRecord",
+    "compare_runs",
+    "comparison_html",
     "ENTRY_POINT_GROUP",
     "ENV_VAR",
     "ERROR_OF_TARGET",

@@ -1,0 +1,48 @@
+"""Enabling an effect is one option: which stage config it changes, clear errors for the ones no
+stage models, and the Prefect UI summary of a diagnosis with the rerun command."""
+
+from __future__ import annotations
+
+import pytest
+
+from schemas import DiagnosisReport, EffectFinding, PipelineConfig
+
+
+def test_with_effects_changes_only_the_modelling_stage():
+    base = PipelineConfig.preset("quick")
+    cfg = base.with_effects(["vignetting", "exposure_white_balance", "screw_joint"])
+    assert cfg.reconstruct.sensor_effects == ["exposure_white_balance", "vignetting"]
+    assert cfg.fit_joints.model_screw
+    assert cfg.enabled_effects() == ["exposure_white_balance", "screw_joint", "vignetting"]
+    for name in ("ingest", "refine_poses", "registration", "part_masks", "track", "articulate", "diagnose"):
+        assert getattr(cfg, name) == getattr(base, name), name
+    assert cfg.reconstruct.steps == base.reconstruct.steps  # the rest of the stage config is kept
+    assert base.enabled_effects() == []
+
+
+def test_effects_no_stage_models_are_refused_by_name():
+    with pytest.raises(ValueError, match="axis_tilt.*can be enabled"):
+        PipelineConfig().with_effects(["axis_tilt"])
+    with pytest.raises(ValueError):  # the schema itself rejects an unknown sensor effect
+        PipelineConfig.model_validate({"reconstruct": {"sensor_effects": ["lens_distortion"]}})
+
+
+def test_prefect_ui_summary_lists_the_ranking_and_the_rerun_command():
+    from flows.scene import diagnosis_markdown
+
+    def finding(name, scope, target, frac, enabled):
+        return EffectFinding(name=name, scope=scope, target=target, explained_frac=frac, energy_before=1.0,
+                             energy_after=1.0 - frac, significant=enabled, enabled=enabled)
+
+    report = DiagnosisReport(
+        findings=[finding("exposure_white_balance", "static recording", "photometric", 0.9, True),
+                  finding("axis_tilt", "joint_0", "joint-tracks", 0.6, True),
+                  finding("vignetting", "static recording", "photometric", 0.05, False)],
+        enabled=["static recording/exposure_white_balance", "joint_0/axis_tilt"],
+        conclusion=["exposure explains 90% of the photometric residual"],
+    )
+    text = "\n".join(diagnosis_markdown(report))
+    assert "| 1 | static recording | exposure_white_balance | photometric | 90% | yes | yes |" in text
+    assert "--effect exposure_white_balance" in text
+    assert "--effect axis_tilt" not in text  # no stage models it: not offered as a rerun
+    assert "exposure explains 90%" in text
