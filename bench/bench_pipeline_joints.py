@@ -8,8 +8,10 @@ Segmented parts are matched to true parts by mask overlap. Per part: type correc
 median 3D track error (mm, each track's query-frame point moved by the true part motion), the
 true state reached by the last frame with tracks, and the seconds of the track and fit stages.
 
-Run: ``python bench/bench_pipeline_joints.py [--scenes door drawer ...]``; prints a table and
-writes ``bench/results/pipeline_joints.json``.
+Run: ``python bench/bench_pipeline_joints.py [--scenes door drawer ...] [--save-tracks DIR]``;
+prints a table and writes ``bench/results/pipeline_joints.json``. ``--save-tracks`` keeps each
+part's trajectories with its true motion (``DIR/<scene>_part<k>.npz``) so that the joint fit can
+be studied offline without re-running registration, masks and tracking.
 """
 
 from __future__ import annotations
@@ -32,8 +34,15 @@ from artitwin_core.registration import RegistrationConfig, register_recordings  
 from artitwin_core.synth import BENCHMARK_SCENES, generate_scene  # noqa: E402
 from artitwin_core.tracking import TrackingConfig, track_part_points  # noqa: E402
 
-DEFAULT_SCENES = ["tiny", "door", "drawer", "door+drawer", "low-texture-door", "strong-hand-occlusion",
-                  "non-ideal-joints"]
+DEFAULT_SCENES = [
+    "tiny",
+    "door",
+    "drawer",
+    "door+drawer",
+    "low-texture-door",
+    "strong-hand-occlusion",
+    "non-ideal-joints",
+]
 GRAVITY = (0.0, -1.0, 0.0)
 
 
@@ -52,7 +61,7 @@ def _track_error_mm(traj, part_world_from_closed: np.ndarray) -> float:
     return 1e3 * float(np.median(np.concatenate(errs))) if errs else float("nan")
 
 
-def bench_scene(name: str) -> list[dict]:
+def bench_scene(name: str, save_tracks: Path | None = None) -> list[dict]:
     scene = generate_scene(BENCHMARK_SCENES[name])
     s, d, truth = scene.static, scene.dynamic, scene.truth
     t0 = time.perf_counter()
@@ -63,8 +72,13 @@ def bench_scene(name: str) -> list[dict]:
     rows = []
     labels = [int(v) for v in np.unique(seg.masks.part) if v > 0]
     for k, joint_true in enumerate(truth.joints):
-        row = {"scene": name, "part": k, "joint_true": joint_true.joint_type, "frames": d.num_frames,
-               "register_masks_s": t_masks}
+        row = {
+            "scene": name,
+            "part": k,
+            "joint_true": joint_true.joint_type,
+            "frames": d.num_frames,
+            "register_masks_s": t_masks,
+        }
         true_mask = truth.part_masks == k + 1
         overlap = [np.logical_and(seg.masks.part == lab, true_mask).sum() for lab in labels]
         if not labels or max(overlap) == 0:
@@ -73,13 +87,31 @@ def bench_scene(name: str) -> list[dict]:
             continue
         label = labels[int(np.argmax(overlap))]
         t0 = time.perf_counter()
-        traj = track_part_points(d, seg.masks, reg.canonical_from_session, part_label=label, config=TrackingConfig())
+        traj = track_part_points(
+            d, seg.masks, reg.canonical_from_session, part_label=label, config=TrackingConfig()
+        )
         row["track_s"] = time.perf_counter() - t0
+        if save_tracks is not None:
+            save_tracks.mkdir(parents=True, exist_ok=True)
+            np.savez_compressed(
+                save_tracks / f"{name}_part{k}.npz",
+                points_in_world=traj.points_in_world,
+                pixels=traj.pixels,
+                valid=traj.valid,
+                query_frame=traj.query_frame,
+                part_world_from_closed=truth.part_world_from_closed[k],
+                q_true=joint_true.q,
+                axis_true=joint_true.axis,
+                pivot_true=joint_true.pivot,
+                type_true=joint_true.joint_type,
+            )
         n_valid = traj.valid.sum(1)
         covered = np.nonzero(n_valid >= 3)[0]
         q_abs = np.abs(joint_true.q)
         row["tracks"] = int(traj.valid.shape[1])
-        row["q_reached"] = float(q_abs[covered].max() / q_abs.max()) if covered.size and q_abs.max() > 0 else 0.0
+        row["q_reached"] = (
+            float(q_abs[covered].max() / q_abs.max()) if covered.size and q_abs.max() > 0 else 0.0
+        )
         row["track_err_mm"] = _track_error_mm(traj, truth.part_world_from_closed[k])
         ref = 0 if n_valid[0] >= 3 else (int(covered[0]) if covered.size else 0)
         t0 = time.perf_counter()
@@ -115,18 +147,45 @@ def bench_scene(name: str) -> list[dict]:
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--scenes", nargs="*", default=DEFAULT_SCENES)
+    parser.add_argument(
+        "--save-tracks",
+        type=Path,
+        default=None,
+        help="folder to save each part's trajectories and true motion (.npz) for offline fits",
+    )
     args = parser.parse_args()
     cv2.setNumThreads(2)
     rows = []
     for name in args.scenes:
-        rows.extend(bench_scene(name))
+        rows.extend(bench_scene(name, args.save_tracks))
         print(f"{name}: done", flush=True)
-    columns = ["scene", "part", "joint_true", "joint_est", "type_ok", "axis_deg", "pivot_mm", "range_true",
-               "range_est", "range_err", "state_rmse", "unit", "q_reached", "tracks", "track_err_mm",
-               "register_masks_s", "track_s", "fit_s"]
-    print("\nPipeline: register_recordings -> segment_parts -> track_part_points -> estimate_joint (ref frame 0)")
+    columns = [
+        "scene",
+        "part",
+        "joint_true",
+        "joint_est",
+        "type_ok",
+        "axis_deg",
+        "pivot_mm",
+        "range_true",
+        "range_est",
+        "range_err",
+        "state_rmse",
+        "unit",
+        "q_reached",
+        "tracks",
+        "track_err_mm",
+        "register_masks_s",
+        "track_s",
+        "fit_s",
+    ]
+    print(
+        "\nPipeline: register_recordings -> segment_parts -> track_part_points -> estimate_joint (ref frame 0)"
+    )
     print_table(rows, columns)
-    path = write_results("pipeline_joints", rows, {"tracking": repr(TrackingConfig()), "joints": repr(JointFitConfig())})
+    path = write_results(
+        "pipeline_joints", rows, {"tracking": repr(TrackingConfig()), "joints": repr(JointFitConfig())}
+    )
     print(f"\nwrote {path}")
 
 

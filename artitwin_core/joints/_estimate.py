@@ -24,7 +24,9 @@ Pipeline (``estimate_joint``):
    parameter count (the latent points are shared by all models and cancel). The screw must beat
    the revolute by ``screw_bic_margin`` and show at least ``min_screw_travel_m`` of axial travel;
    "fixed" wins when its BIC is lowest (the motion is within what noise explains) or when the
-   best model moves the part by less than ``min_motion_m``.
+   best model moves the part by less than ``min_motion_m``. A rotational fit competes only if it
+   is a rotation (``_rotation_plausible``): it turns the part by ``min_rotation_rad`` or more,
+   and it is no slide with a tilt (an axis many part radii away with a small turn).
 4. The chosen fit is re-gauged so that ``q = 0`` at the reference frame, its pivot is moved to the
    point of the axis line closest to the part's centroid, and the axis is flipped so that the
    largest ``|q|`` is positive. Per-frame confidence comes from the standard error of ``q_t``
@@ -83,6 +85,16 @@ class JointFitConfig:
         min_rotation_rad: a revolute or screw fit must turn the part by at least this much over
             the recording, else it is not considered (a near-zero rotation about a far axis is a
             translation).
+        max_pivot_part_ratio: a revolute or screw fit whose axis runs farther from the part's
+            centroid than this many part radii (90th percentile of the inlier points' distances
+            to their centroid across the axis) ...
+        max_tilt_rad: ... and that turns the part by less than this over the recording is a
+            slide with a tilt, not a hinge, and is not considered. Over a small angle a rotation
+            about an axis at distance ``R`` moves the part along an arc of sagitta
+            ``R dq^2 / 8`` (1.3 mm for a drawer tilting 0.04 rad over 0.25 m, i.e. ``R`` = 6 m),
+            which no tracker tells from a straight slide with the same tilt; a hinge sits at the
+            part (a door's axis is about one part radius from its centroid) and a slide's tilt is
+            small, so only the combination of both is read as a tilt.
         min_motion_m: below this RMS displacement of the part's points, the joint is "fixed".
         noise_floor_m: lower bound on the noise estimate (keeps the BIC finite on clean data).
         q_tolerance_rad: standard error of a revolute ``q`` at which confidence is 0.5.
@@ -107,6 +119,8 @@ class JointFitConfig:
     min_screw_travel_m: float = 0.015
     screw_min_pitch_t: float = 5.0
     min_rotation_rad: float = 0.05
+    max_pivot_part_ratio: float = 4.0
+    max_tilt_rad: float = 0.25
     min_motion_m: float = 0.002
     noise_floor_m: float = 1e-5
     q_tolerance_rad: float = float(np.deg2rad(0.5))
@@ -124,6 +138,7 @@ class JointFitConfig:
             "noise_floor_m",
             "q_tolerance_rad",
             "q_tolerance_m",
+            "max_pivot_part_ratio",
         ):
             if not getattr(self, name) > 0:
                 raise ValueError(f"JointFitConfig.{name} must be > 0, got {getattr(self, name)}")
@@ -643,13 +658,37 @@ def _validate(traj: Trajectories, reference_frame: int) -> tuple[np.ndarray, np.
     return pts, valid
 
 
-def _rotation_plausible(joint: Joint, cfg: JointFitConfig) -> bool:
-    """A rotational fit is a rotation, not a translation in disguise: it turns the part by at
-    least ``min_rotation_rad`` over the recording (a drawer's tracking errors that grow as it
-    slides out are fitted best by a rotation of a few milliradians about an axis tens of metres
-    away, which wins the BIC against the translation by the two parameters it adds)."""
+def _rotation_plausible(joint: Joint, points: np.ndarray, part: np.ndarray, cfg: JointFitConfig) -> bool:
+    """A rotational fit is a rotation, not a translation in disguise.
+
+    It turns the part by at least ``min_rotation_rad`` over the recording (a drawer's tracking
+    errors that grow as it slides out are fitted best by a rotation of a few milliradians about an
+    axis tens of metres away, which wins the BIC against the translation by the two parameters it
+    adds), and it is not a slide with a tilt: an axis farther than ``max_pivot_part_ratio`` part
+    radii from the part together with a turn below ``max_tilt_rad`` (a drawer that dips 0.04 rad
+    as it slides 0.25 m is a rotation about an axis 6 m away, and wins the BIC by far because the
+    prismatic model has no tilt; it is still a drawer).
+
+    Args:
+        joint: the finalised rotational fit (pivot at the axis point closest to the centroid).
+        points: ``[N, 3]`` its latent closed-state points, metres.
+        part: ``[N]`` bool, the tracks the fit kept.
+    """
     span = float(joint.q_range[1] - joint.q_range[0])
-    return span >= cfg.min_rotation_rad
+    if span < cfg.min_rotation_rad:
+        return False
+    if span >= cfg.max_tilt_rad:
+        return True
+    x = points[part] if part.sum() >= 3 else points[np.all(np.isfinite(points), axis=1)]
+    if x.shape[0] < 3:
+        return True
+    axis = joint.axis / np.linalg.norm(joint.axis)
+    centroid = x.mean(0)
+    across = (x - centroid) - np.outer((x - centroid) @ axis, axis)
+    radius = float(np.percentile(np.linalg.norm(across, axis=1), 90))
+    off = centroid - joint.pivot
+    distance = float(np.linalg.norm(off - (off @ axis) * axis))
+    return distance <= cfg.max_pivot_part_ratio * max(radius, 1e-6)
 
 
 def _pitch_significance(
@@ -803,7 +842,11 @@ def estimate_joint(
         )
 
     # 3. Model selection.
-    moving = [k for k in ("prismatic", "revolute") if k == "prismatic" or _rotation_plausible(finals[k][1], cfg)]
+    plausible = {
+        k: _rotation_plausible(finals[k][1], finals[k][2], finals[k][0].track_ok, cfg)
+        for k in ("revolute", "screw")
+    }
+    moving = [k for k in ("prismatic", "revolute") if k == "prismatic" or plausible[k]]
     best = min(moving, key=lambda k: hyps[k].bic)
     screw = finals["screw"][1]
     travel = abs(screw.pitch) * float(screw.q_range[1] - screw.q_range[0])
@@ -815,7 +858,7 @@ def estimate_joint(
         and hyps["screw"].bic < hyps["prismatic"].bic
         and travel >= cfg.min_screw_travel_m
         and pitch_t >= cfg.screw_min_pitch_t
-        and _rotation_plausible(screw, cfg)
+        and plausible["screw"]
     ):
         best = "screw"
     fit_b, joint_b, points_b = finals[best]

@@ -116,7 +116,12 @@ def ransac_rigid(
             best_cost, best_rt, best_r2 = cost[j], (rot[j], trans[j]), r2[j]
             ratio = float(np.mean(best_r2 <= threshold_m**2))
             miss = 1.0 - ratio**3
-            needed = 0 if miss <= 0 else int(np.ceil(np.log(1 - confidence) / np.log(max(miss, 1e-12))))
+            if miss <= 0:
+                needed = 0
+            elif miss >= 1.0:  # no inlier at all (or ratio**3 below float resolution): draw them all
+                needed = iterations
+            else:
+                needed = int(np.ceil(np.log(1 - confidence) / np.log(max(miss, 1e-12))))
         if m == 3:
             break
     if best_rt is None:
