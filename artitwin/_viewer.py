@@ -15,7 +15,7 @@ from pathlib import Path
 import numpy as np
 
 from artitwin_core._errors import InputError
-from artitwin_core.gaussians import LABEL_PART, GaussianParams
+from artitwin_core.gaussians import LABEL_BACKGROUND, LABEL_INTERIOR, LABEL_PART, GaussianParams
 from artitwin_core.viewer import (
     CameraRig,
     TwinData,
@@ -287,8 +287,15 @@ def _twin_from_summary(summary_path: Path, export_dir: str | Path | None) -> Twi
         found = sorted(summary_path.parent.glob("*/meshes")) + sorted(summary_path.parent.glob("*/*/meshes"))
         export_dir = found[0].parent if found else None
     collision = read_collision_meshes(export_dir, names, joints) if export_dir is not None else []
-    return TwinData(params, tuple(joints), tuple(names), cameras, residual_points=points, residual_values=values,
-                    collision=tuple(collision), title=Path(summary.get("scene", summary_path.parent)).name)
+    per_gaussian = None
+    if points is not None and len(points):
+        # The residual accumulated onto the model: which Gaussians (and so which part) are wrong.
+        from artitwin_core.viewer import residual_on_gaussians
+
+        per_gaussian = residual_on_gaussians(params.means, points, values)
+    return TwinData(params, tuple(joints), tuple(names), cameras, residual=per_gaussian, residual_points=points,
+                    residual_values=values, collision=tuple(collision),
+                    title=Path(summary.get("scene", summary_path.parent)).name)
 
 
 def _depth_residual(store, key: str, cap, poses) -> tuple[np.ndarray | None, np.ndarray | None]:
@@ -341,6 +348,14 @@ def view(
         f"{0 if twin.cameras is None else twin.cameras.world_from_camera.shape[0]} cameras, "
         f"{len(twin.collision)} collision meshes"
     )
+    if twin.residual is not None and np.isfinite(twin.residual).any():
+        from artitwin_core.viewer import residual_by_label
+
+        names = {LABEL_BACKGROUND: "background", LABEL_INTERIOR: "interior"}
+        names.update({LABEL_PART + k: n for k, n in enumerate(twin.joint_names)})
+        by = residual_by_label(twin.residual, twin.gaussians.labels, names)
+        echo("residual per part (mean over its observed Gaussians; a run's depth residual is in metres): "
+             + ", ".join(f"{n} {v:.3g}" for n, v in by.items() if np.isfinite(v)))
     echo(f"viewer at {viewer.url} (Ctrl-C stops it)")
     if not block:
         return viewer

@@ -32,7 +32,14 @@ from artitwin_core.diagnostics._report import residual_maps
 from artitwin_core.gaussians import GaussianParams
 from artitwin_core.joints import Joint
 from artitwin_core.reconstruction import render_view
-from schemas import CameraPoses, CaptureArtifact, GaussianCheckpoint, JointSet, ReportImage, TrajectoriesArtifact
+from schemas import (
+    CameraPoses,
+    CaptureArtifact,
+    GaussianCheckpoint,
+    JointSet,
+    ReportImage,
+    TrajectoriesArtifact,
+)
 from schemas._diagnose import (
     DiagnoseConfig,
     DiagnosisReport,
@@ -41,8 +48,8 @@ from schemas._diagnose import (
     ViewPrediction,
 )
 from tasks._convert import to_core
-from tasks.reconstruct import sensor_model
 from tasks._stage import stage
+from tasks.reconstruct import sensor_model
 
 STATIC_SCOPE = "static recording"
 

@@ -14,8 +14,8 @@ from artitwin_core.capture import Capture
 from artitwin_core.gaussians import GaussianParams
 from artitwin_core.reconstruction import (
     InitConfig,
-    SensorModel,
     PoseRefineConfig,
+    SensorModel,
     TrainConfig,
     TrainState,
     evaluate_views,

@@ -13,7 +13,7 @@ from artitwin_core.viewer._files import (
     read_residual,
     read_twin_files,
 )
-from artitwin_core.viewer._residual import depth_residual_points
+from artitwin_core.viewer._residual import depth_residual_points, residual_by_label, residual_on_gaussians
 from artitwin_core.viewer._splats import (
     heat_colors,
     matrix_to_quat_wxyz,
@@ -31,6 +31,8 @@ __all__ = [
     "MeshPiece",
     "TwinData",
     "depth_residual_points",
+    "residual_by_label",
+    "residual_on_gaussians",
     "heat_colors",
     "matrix_to_quat_wxyz",
     "part_poses",

@@ -54,3 +54,44 @@ def depth_residual_points(
         keep = np.sort(np.random.default_rng(seed).choice(pts.shape[0], max_points, replace=False))
         pts, vals = pts[keep], vals[keep]
     return pts.astype(np.float32), vals.astype(np.float32)
+
+
+def residual_on_gaussians(
+    means: np.ndarray, points: np.ndarray, values: np.ndarray, *, max_distance_m: float = 0.03
+) -> np.ndarray:
+    """Accumulate residual points onto the model: each point goes to its nearest Gaussian centre
+    (within ``max_distance_m``), and each Gaussian gets the mean of its points.
+
+    Args:
+        means: ``[N, 3]`` Gaussian centres, metres.
+        points, values: ``[M, 3]`` residual points and ``[M]`` their values (``depth_residual_points``).
+
+    Returns:
+        ``[N]`` float32 mean residual per Gaussian; NaN where no point landed (not observed).
+    """
+    from scipy.spatial import cKDTree
+
+    means, points, values = np.asarray(means, np.float64), np.asarray(points, np.float64), np.asarray(values, np.float64)
+    if means.ndim != 2 or means.shape[1] != 3 or points.ndim != 2 or points.shape[1] != 3 or values.shape != points.shape[:1]:
+        raise InputError(f"residual: means {means.shape} and points {points.shape} must be [*, 3], values {values.shape} [M].")
+    out = np.full(means.shape[0], np.nan, np.float32)
+    if not len(means) or not len(points):
+        return out
+    dist, idx = cKDTree(means).query(points, distance_upper_bound=max_distance_m)
+    hit = np.isfinite(dist)
+    sums = np.bincount(idx[hit], weights=values[hit], minlength=len(means))
+    counts = np.bincount(idx[hit], minlength=len(means))
+    seen = counts > 0
+    out[seen] = (sums[seen] / counts[seen]).astype(np.float32)
+    return out
+
+
+def residual_by_label(per_gaussian: np.ndarray, labels: np.ndarray, names: dict[int, str]) -> dict[str, float]:
+    """Mean of the per-Gaussian residual over each label's observed Gaussians (``{name: value}``;
+    NaN for a label none of whose Gaussians was observed)."""
+    per_gaussian, labels = np.asarray(per_gaussian, np.float64), np.asarray(labels)
+    out = {}
+    for label, name in names.items():
+        v = per_gaussian[(labels == label) & np.isfinite(per_gaussian)]
+        out[name] = float(v.mean()) if v.size else float("nan")
+    return out

@@ -134,3 +134,9 @@ def test_a_run_folder_with_diagnostics_gives_the_depth_residual(tmp_path, door_s
     assert vals.shape[0] > 1000
     np.testing.assert_allclose(np.sort(np.unique(np.round(vals, 4))), [0.0, 0.02], atol=1e-6)
     assert 0.05 < np.mean(vals > 0.01) < 0.1  # the window is 1/16 of the pixels
+    # ... accumulated onto the Gaussians: the ones the window's pixels land on carry its 2 cm.
+    per = twin.residual
+    assert per.shape == (twin.gaussians.num_gaussians,) and np.isfinite(per).mean() > 0.05
+    seen = per[np.isfinite(per)]
+    assert seen.min() >= 0.0 and seen.max() <= 0.02 + 1e-6
+    assert 0.01 < np.mean(seen > 0.01) < 0.4

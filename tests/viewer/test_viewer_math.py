@@ -137,3 +137,19 @@ def test_depth_residual_points_lie_on_the_measured_surface():
     np.testing.assert_allclose(vals, 0.05, atol=1e-6)
     with pytest.raises(InputError, match="predicted depth"):
         depth_residual_points(depth, pred[:, :10], np.zeros((1, 4)), pose[None])
+
+
+def test_residual_accumulates_onto_the_nearest_gaussians_and_per_label():
+    from artitwin_core.viewer import residual_by_label, residual_on_gaussians
+
+    means = np.array([[0.0, 0, 0], [1.0, 0, 0], [5.0, 0, 0]])
+    rng = np.random.default_rng(0)
+    pts = np.concatenate([0.01 * rng.standard_normal((50, 3)), [1, 0, 0] + 0.01 * rng.standard_normal((30, 3)),
+                          [[3.0, 0, 0]]])  # the last point is far from every Gaussian
+    vals = np.concatenate([np.full(50, 0.002), np.full(30, 0.05), [9.0]])
+    per = residual_on_gaussians(means, pts, vals, max_distance_m=0.1)
+    np.testing.assert_allclose(per[:2], [0.002, 0.05], rtol=1e-6)
+    assert np.isnan(per[2])  # never observed
+    by = residual_by_label(per, np.array([0, 2, 2]), {0: "background", 1: "interior", 2: "part_0"})
+    assert by["background"] == pytest.approx(0.002) and by["part_0"] == pytest.approx(0.05)
+    assert np.isnan(by["interior"])
