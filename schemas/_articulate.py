@@ -55,6 +55,20 @@ class ArticulateConfig(StageConfig):
     seed_max_points: int = Field(
         default=15_000, ge=0, description="At most this many new (revealed-surface) Gaussians."
     )
+    seed_background: bool = Field(
+        default=True,
+        description="Also seed and train background Gaussians where the dynamic views see static surface "
+        "that the canonical model leaves transparent (never seen by the static recording).",
+    )
+    seed_background_max_points: int = Field(
+        default=15_000, ge=0, description="At most this many new background Gaussians."
+    )
+    appearance_knots: int = Field(
+        default=0,
+        ge=0,
+        description="Knots of each part's brightness curve over its joint state (0 = none). Off here until "
+        "the twin artifact stores the curves: trained curves that are dropped would darken the parts.",
+    )
     lr_means: float = Field(
         default=1.6e-4, gt=0, description="Position learning rate, times the scene extent (metres)."
     )

@@ -49,6 +49,9 @@ def core_config(config: ArticulateConfig) -> ArticulationConfig:
         dynamic_weight=config.dynamic_weight,
         seed_depth_tol_m=config.seed_depth_tol_m,
         seed_max_points=config.seed_max_points,
+        seed_background=config.seed_background,
+        seed_background_max_points=config.seed_background_max_points,
+        appearance_knots=config.appearance_knots,
         lr_means=config.lr_means,
         backend=config.backend,
         seed=config.seed,
@@ -74,7 +77,7 @@ def _dynamic(dynamic: CaptureArtifact, registration: Registration) -> Capture:
     return to_core(Capture, dynamic, world_from_camera=canonical)
 
 
-@stage(name="articulate", version=1, config=ArticulateConfig, output=GaussianCheckpoint)
+@stage(name="articulate", version=2, config=ArticulateConfig, output=GaussianCheckpoint)
 def articulate_twin(
     canonical: GaussianCheckpoint,
     static: CaptureArtifact,

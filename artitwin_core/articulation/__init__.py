@@ -5,9 +5,11 @@ canonical Gaussians (background, interior, part k) from the part masks and the j
 Gaussians where the opening part reveals unseen surface, trains interior and part Gaussians on
 the dynamic frames with the parts moved to each frame's joint state (phase I), then everything
 on both recordings (phase II), and reports held-out PSNR. ``render_twin`` renders the result at
-any joint state and viewpoint; ``world_from_part`` is the part's rigid motion at state q.
+any joint state and viewpoint, with each part's brightness curve over its joint state
+(``PartAppearance``: a turning part changes its angle to the light); ``world_from_part`` is the part's rigid motion at state q.
 """
 
+from artitwin_core.articulation._appearance import PartAppearance
 from artitwin_core.articulation._config import ArticulationConfig, PartitionConfig
 from artitwin_core.articulation._kinematics import (
     articulate_params,
@@ -26,6 +28,7 @@ __all__ = [
     "ArticulationConfig",
     "ArticulationResult",
     "ArticulationState",
+    "PartAppearance",
     "PartitionConfig",
     "PartitionVotes",
     "articulate",

@@ -70,6 +70,13 @@ class ArticulationConfig:
             at the median depth, clamped to [0.005, 0.03] m).
         seed_max_points: at most this many new Gaussians (the voxel grows until it holds).
         seed_opacity: opacity of seeded Gaussians.
+        seed_background: also seed background Gaussians where the dynamic views see static
+            surface the model leaves transparent (outside the part region), and train them in
+            phase I with the parts.
+        seed_background_max_points: at most this many of those.
+        appearance_knots: knots of each part's brightness curve over its joint range (0 = no
+            curve: parts keep their closed-state colours at every state; see ``PartAppearance``).
+        lr_part_gain: Adam learning rate of the curves' log gains.
         lr_means, lr_sh_dc, lr_sh_rest, lr_opacity, lr_scales, lr_quats: Adam learning rates.
         min_opacity: after each phase, trained Gaussians fainter than this are pruned.
         background: RGB in [0, 1] behind everything.
@@ -90,6 +97,10 @@ class ArticulationConfig:
     seed_voxel_m: float | None = None
     seed_max_points: int = 15_000
     seed_opacity: float = 0.5
+    seed_background: bool = True
+    seed_background_max_points: int = 15_000
+    appearance_knots: int = 8
+    lr_part_gain: float = 0.02
     lr_means: float = 1.6e-4
     lr_sh_dc: float = 2.5e-3
     lr_sh_rest: float = 2.5e-3 / 20.0
@@ -111,6 +122,10 @@ class ArticulationConfig:
         if not 0.0 <= self.lambda_dssim <= 1.0:
             raise InputError(
                 f"ArticulationConfig.lambda_dssim is {self.lambda_dssim}; use a value in [0, 1]."
+            )
+        if self.appearance_knots < 0 or self.appearance_knots == 1:
+            raise InputError(
+                f"ArticulationConfig.appearance_knots is {self.appearance_knots}; use 0 (no curve) or >= 2."
             )
         if not 0.0 < self.seed_opacity < 1.0:
             raise InputError(

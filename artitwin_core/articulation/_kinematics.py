@@ -6,6 +6,7 @@ rotation about the axis line through the pivot (revolute), translation along the
 ``LABEL_PART + k`` move rigidly with joint k: centres by ``R x + t`` and rotations by
 ``q_R * q``; background and interior Gaussians stay. Spherical-harmonic coefficients are not
 rotated (view-dependent colour of a moved part is evaluated in the canonical orientation).
+Given a :class:`PartAppearance`, part colours are scaled by the part's gain at ``q``.
 """
 
 from __future__ import annotations
@@ -16,6 +17,7 @@ import numpy as np
 import torch
 
 from artitwin_core._errors import InputError
+from artitwin_core.articulation._appearance import PartAppearance, apply_part_gains
 from artitwin_core.gaussians import LABEL_PART, GaussianParams
 from artitwin_core.geometry import matrix_to_quat_wxyz
 from artitwin_core.joints import Joint, joint_transforms
@@ -89,10 +91,28 @@ def articulate_tensors(
 
 
 def articulate_params(
-    params: GaussianParams, joints: Sequence[Joint], q_per_joint: Sequence[float]
+    params: GaussianParams,
+    joints: Sequence[Joint],
+    q_per_joint: Sequence[float],
+    appearance: PartAppearance | None = None,
 ) -> GaussianParams:
-    """``params`` with every part-k Gaussian moved to joint k's state ``q_per_joint[k]``."""
+    """``params`` with every part-k Gaussian moved to joint k's state ``q_per_joint[k]`` (and its
+    colour scaled by ``appearance``'s gain there, when given)."""
     motions = part_motions(joints, q_per_joint)
+    sh = params.sh
+    if appearance is not None and appearance.num_parts:
+        if appearance.num_parts != len(joints):
+            raise InputError(
+                f"articulate_params: the appearance has {appearance.num_parts} part curves for {len(joints)} "
+                "joints; use the appearance articulated with these joints."
+            )
+        log_g = torch.from_numpy(np.log(appearance.gains(q_per_joint)))
+        with torch.no_grad():
+            sh = apply_part_gains(
+                torch.from_numpy(np.asarray(params.sh, np.float32)),
+                torch.from_numpy(np.asarray(params.labels)),
+                log_g,
+            ).numpy()
     with torch.no_grad():
         m, q = articulate_tensors(
             torch.from_numpy(np.asarray(params.means, np.float64)),
@@ -105,7 +125,7 @@ def articulate_params(
         quats_wxyz=q.numpy().astype(np.float32),
         log_scales=params.log_scales,
         opacity_logits=params.opacity_logits,
-        sh=params.sh,
+        sh=sh,
         labels=params.labels,
     )
 
@@ -121,6 +141,7 @@ def render_twin(
     *,
     background: Sequence[float] = (0.0, 0.0, 0.0),
     backend: str = "auto",
+    appearance: PartAppearance | None = None,
 ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Render the twin at any joint state from any pinhole camera.
 
@@ -131,12 +152,14 @@ def render_twin(
         world_from_camera: ``[4, 4]`` camera pose in the canonical frame, OpenCV axes, metres.
         intrinsics: ``(fx, fy, cx, cy)`` pixels.
         width, height: image size, pixels.
+        appearance: the parts' brightness curves (``ArticulationResult.appearance``); None
+            renders every part with its closed-state colours.
 
     Returns:
         rgb ``[H, W, 3]`` float32 in [0, 1], expected depth ``[H, W]`` float32 metres (0 where
         nothing is rendered), alpha ``[H, W]`` float32.
     """
-    moved = articulate_params(params, joints, q_per_joint)
+    moved = articulate_params(params, joints, q_per_joint, appearance)
     return render_view(
         moved, world_from_camera, intrinsics, width, height, background=background, backend=backend
     )

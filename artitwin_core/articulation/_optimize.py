@@ -21,6 +21,7 @@ import torch
 from scipy.ndimage import binary_dilation
 from scipy.spatial import cKDTree
 
+from artitwin_core.articulation._appearance import PartAppearance, apply_part_gains, part_log_gains
 from artitwin_core.articulation._config import ArticulationConfig
 from artitwin_core.articulation._kinematics import articulate_tensors, part_motions
 from artitwin_core.gaussians import LABEL_BACKGROUND, LABEL_INTERIOR, LABEL_PART, GaussianParams, rasterize
@@ -66,6 +67,9 @@ class ArticulationState:
         step: steps taken over both phases.
         extent: scene scale, metres (the position learning rate scales with it).
         losses: loss of every step.
+        knots: ``[K, M]`` joint states of the part gain curves (see :class:`PartAppearance`).
+        log_gain: ``[K, M]`` leaf tensor, the curves' log gains; ``gain_avg``, ``gain_avg_sq``
+            its Adam moments.
     """
 
     params: dict[str, torch.Tensor]
@@ -75,9 +79,29 @@ class ArticulationState:
     step: int
     extent: float
     losses: list[float] = field(default_factory=list)
+    knots: np.ndarray = field(default_factory=lambda: np.zeros((0, 0)))
+    log_gain: torch.Tensor = field(default_factory=lambda: torch.zeros((0, 0), dtype=torch.float64))
+    gain_avg: torch.Tensor = field(default_factory=lambda: torch.zeros((0, 0), dtype=torch.float64))
+    gain_avg_sq: torch.Tensor = field(default_factory=lambda: torch.zeros((0, 0), dtype=torch.float64))
+
+    def set_appearance(self, appearance: PartAppearance | None) -> None:
+        """Start the part gain curves from ``appearance`` (None: no curves, gain 1)."""
+        if appearance is None:
+            appearance = PartAppearance(np.zeros((0, 0)), np.zeros((0, 0)))
+        self.knots = np.asarray(appearance.knots, np.float64)
+        self.log_gain = torch.tensor(appearance.log_gain, dtype=torch.float64, requires_grad=True)
+        self.gain_avg = torch.zeros_like(self.log_gain)
+        self.gain_avg_sq = torch.zeros_like(self.log_gain)
+
+    def appearance(self) -> PartAppearance | None:
+        if self.knots.size == 0:
+            return None
+        return PartAppearance(self.knots.copy(), self.log_gain.detach().numpy().copy())
 
     @classmethod
-    def from_params(cls, params: GaussianParams, extent: float) -> ArticulationState:
+    def from_params(
+        cls, params: GaussianParams, extent: float, appearance: PartAppearance | None = None
+    ) -> ArticulationState:
         sh = torch.from_numpy(np.ascontiguousarray(params.sh, np.float32))
         p = {
             "means": torch.from_numpy(np.ascontiguousarray(params.means, np.float32)),
@@ -88,7 +112,7 @@ class ArticulationState:
             "sh_rest": sh[:, 1:],
         }
         p = {k: v.clone().requires_grad_(True) for k, v in p.items()}
-        return cls(
+        state = cls(
             params=p,
             labels=torch.from_numpy(np.asarray(params.labels, np.int32).copy()),
             exp_avg={k: torch.zeros_like(v) for k, v in p.items()},
@@ -96,6 +120,8 @@ class ArticulationState:
             step=0,
             extent=float(extent),
         )
+        state.set_appearance(appearance)
+        return state
 
     @property
     def num_gaussians(self) -> int:
@@ -153,6 +179,8 @@ def render_state(
         p["means"][idx], p["quats_wxyz"][idx], labels[idx], part_motions(joints, av.q[v])
     )
     sh = torch.cat([p["sh_dc"][idx], p["sh_rest"][idx]], 1)
+    if state.knots.size:
+        sh = apply_part_gains(sh, labels[idx], part_log_gains(state.log_gain, state.knots, av.q[v]))
     w, h = av.views.size
     return rasterize(
         means, quats, p["log_scales"][idx], p["opacity_logits"][idx], sh,
@@ -188,19 +216,48 @@ def auto_seed_voxel(av: ArticulatedViews) -> float:
     return float(np.clip(1.5 * med / fx, 0.005, 0.03))
 
 
+def uncovered_background(
+    state: ArticulationState,
+    av: ArticulatedViews,
+    region: np.ndarray,
+    joints: Sequence[Joint],
+    config: ArticulationConfig,
+) -> np.ndarray:
+    """``[V, H, W]`` bool pixels outside the part ``region`` (and clear of the hand) where the
+    model is transparent (alpha < 0.5): static surface the dynamic views see and the static
+    recording never did. On the door benchmark the camera turns towards the opened handle and
+    shows floor the static sweep missed; left empty it rendered black there (13 dB background
+    PSNR on the last held-out frame)."""
+    out = np.zeros(region.shape, bool)
+    for v in range(len(av)):
+        with torch.no_grad():
+            alpha = render_state(state, av, v, joints, config).alpha.numpy()
+        hand = (
+            binary_dilation(av.hand[v], iterations=config.region_dilate_px)
+            if av.hand[v].any()
+            else av.hand[v]
+        )
+        out[v] = (alpha < 0.5) & ~region[v] & ~hand
+    return out
+
+
 def seed_unexplained(
     state: ArticulationState,
     av: ArticulatedViews,
     region: np.ndarray,
     joints: Sequence[Joint],
     config: ArticulationConfig,
+    other_label: int = LABEL_INTERIOR,
+    max_points: int | None = None,
 ) -> GaussianParams:
     """New Gaussians where the dynamic views see surface the current model does not explain.
 
     A region pixel with valid sensor depth (not hand) is unexplained when the model's alpha is
     below 0.5 there or its depth lies more than ``seed_depth_tol_m`` behind the sensor. It is
     lifted into the canonical frame; on a part (mask k + 1) it is moved back to the closed state
-    by the inverse joint motion and labelled part k, elsewhere it is labelled interior.
+    by the inverse joint motion and labelled part k, elsewhere it is labelled ``other_label``
+    (interior behind the parts, background for :func:`uncovered_background`). At most
+    ``max_points`` (default ``config.seed_max_points``) Gaussians.
     """
     pts, cols, labs = [], [], []
     w, h = av.views.size
@@ -220,7 +277,7 @@ def seed_unexplained(
         cam = np.stack([(uu[bad] + 0.5 - cx) / fx * z, (vv[bad] + 0.5 - cy) / fy * z, z, np.ones_like(z)], 1)
         world_from_cam = np.linalg.inv(av.views.cam_from_world[v].numpy().astype(np.float64))
         x = cam @ world_from_cam.T
-        lab = np.full(len(z), LABEL_INTERIOR, np.int32)
+        lab = np.full(len(z), other_label, np.int32)
         part = av.part[v][bad].astype(np.int64)
         motions = part_motions(joints, av.q[v])
         for k in range(len(joints)):
@@ -237,7 +294,7 @@ def seed_unexplained(
     voxel = config.seed_voxel_m or auto_seed_voxel(av)
     while True:
         means, rgb, lab = _voxel_merge(points, colours, labels, voxel)
-        if len(means) <= config.seed_max_points:
+        if len(means) <= (config.seed_max_points if max_points is None else max_points):
             break
         voxel *= 1.25
     n = len(means)
@@ -293,22 +350,32 @@ def _adam(
         "opacity_logits": config.lr_opacity, "sh_dc": config.lr_sh_dc, "sh_rest": config.lr_sh_rest,
     }  # fmt: skip
     lrs = {k: lr_scale * v for k, v in lrs.items()}
-    b1, b2 = _BETAS
     t = state.step + 1
-    bc1, bc2 = 1 - b1**t, 1 - b2**t
     for name, p in state.params.items():
-        g = p.grad
-        if g is None:
-            continue
-        if trainable is not None:
-            g = g * trainable.view(-1, *([1] * (g.dim() - 1))).to(g.dtype)
-        m, v = state.exp_avg[name], state.exp_avg_sq[name]
-        m.mul_(b1).add_(g, alpha=1 - b1)
-        v.mul_(b2).addcmul_(g, g, value=1 - b2)
-        upd = lrs[name] * (m / bc1) / ((v / bc2).sqrt() + _EPS)
-        if trainable is not None:
-            upd = upd * trainable.view(-1, *([1] * (g.dim() - 1))).to(g.dtype)
-        p.sub_(upd)
+        mask = None if trainable is None else trainable.view(-1, *([1] * (p.dim() - 1))).to(p.dtype)
+        _adam_update(p, state.exp_avg[name], state.exp_avg_sq[name], lrs[name], t, mask)
+    if state.log_gain.numel():
+        _adam_update(
+            state.log_gain, state.gain_avg, state.gain_avg_sq, lr_scale * config.lr_part_gain, t, None
+        )
+
+
+def _adam_update(
+    p: torch.Tensor, m: torch.Tensor, v: torch.Tensor, lr: float, t: int, mask: torch.Tensor | None
+) -> None:
+    """One Adam step on ``p`` in place; rows where ``mask`` is 0 neither move nor gather moments."""
+    g = p.grad
+    if g is None:
+        return
+    if mask is not None:
+        g = g * mask
+    b1, b2 = _BETAS
+    m.mul_(b1).add_(g, alpha=1 - b1)
+    v.mul_(b2).addcmul_(g, g, value=1 - b2)
+    upd = lr * (m / (1 - b1**t)) / ((v / (1 - b2**t)).sqrt() + _EPS)
+    if mask is not None:
+        upd = upd * mask
+    p.sub_(upd)
 
 
 def view_loss(
@@ -360,6 +427,7 @@ def run_phase(
         loss = weight * view_loss(state, av, v, masks[v], joints, config)
         for p in state.params.values():
             p.grad = None
+        state.log_gain.grad = None
         loss.backward()
         with torch.no_grad():
             _adam(state, config, i / max(steps, 1), trainable, lr_scale)
@@ -381,10 +449,14 @@ def prune_faint(state: ArticulationState, config: ArticulationConfig, trainable:
 
 
 def evaluate_psnr(
-    params: GaussianParams, av: ArticulatedViews, joints: Sequence[Joint], config: ArticulationConfig
+    params: GaussianParams,
+    av: ArticulatedViews,
+    joints: Sequence[Joint],
+    config: ArticulationConfig,
+    appearance: PartAppearance | None = None,
 ) -> np.ndarray:
     """``[V]`` PSNR (dB) of the twin at each view's joint states, hand pixels excluded."""
-    state = ArticulationState.from_params(params, 1.0)
+    state = ArticulationState.from_params(params, 1.0, appearance)
     out = []
     for v in range(len(av)):
         with torch.no_grad():

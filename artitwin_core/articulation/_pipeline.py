@@ -8,8 +8,10 @@ from dataclasses import dataclass, replace
 
 import numpy as np
 import torch
+from scipy.ndimage import binary_dilation
 
 from artitwin_core._errors import InputError
+from artitwin_core.articulation._appearance import PartAppearance
 from artitwin_core.articulation._config import ArticulationConfig
 from artitwin_core.articulation._optimize import (
     ArticulatedViews,
@@ -20,6 +22,7 @@ from artitwin_core.articulation._optimize import (
     prune_faint,
     run_phase,
     seed_unexplained,
+    uncovered_background,
 )
 from artitwin_core.articulation._partition import partition_gaussians, surface_hits
 from artitwin_core.capture import Capture
@@ -29,24 +32,34 @@ from artitwin_core.masks import MaskSequence
 from artitwin_core.reconstruction import make_views, scene_extent, split_frames
 
 
+def _concat(a: GaussianParams | None, b: GaussianParams) -> GaussianParams:
+    if a is None or a.num_gaussians == 0:
+        return b
+    return GaussianParams(**{k: np.concatenate([getattr(a, k), getattr(b, k)]) for k in a.__dict__})
+
+
 @dataclass(frozen=True)
 class ArticulationResult:
     """The result of :func:`articulate`.
 
     Attributes:
         params: the labelled, optimised Gaussians in the canonical (closed) state.
+        appearance: each part's brightness curve over its joint state (None when
+            ``appearance_knots`` is 0 or there are no joints); render with it.
         train_frames, test_frames: dynamic frame indices used for training and held out.
         psnr_canonical_db: held-out PSNR of the canonical model, nothing moved (hand excluded).
         psnr_partitioned_db: held-out PSNR right after partitioning, parts moved, no training.
         psnr_phase1_db: held-out PSNR after phase I.
         psnr_holdout_db: held-out PSNR after phase II (the final model).
-        counts: Gaussians per label name (``background``, ``interior``, ``part_0``, ...) and
-            ``seeded`` (new ones), ``pruned``.
+        counts: Gaussians per label name (``background``, ``interior``, ``part_0``, ...),
+            ``seeded`` (new part and interior ones), ``seeded_background`` (new background
+            ones where the static recording saw nothing), ``pruned``.
         losses: ``[steps]`` loss per step over both phases.
         seconds: wall time of ``partition``, ``seed``, ``phase1``, ``phase2``, ``evaluate``.
     """
 
     params: GaussianParams
+    appearance: PartAppearance | None
     train_frames: list[int]
     test_frames: list[int]
     psnr_canonical_db: float
@@ -161,10 +174,12 @@ def articulate(
     train_av = dynamic_views(dynamic, dyn_poses, masks, joints, train_frames)
     test_av = dynamic_views(dynamic, dyn_poses, masks, joints, test_frames) if test_frames else None
 
-    def heldout(params: GaussianParams, js: Sequence[Joint]) -> float:
+    def heldout(
+        params: GaussianParams, js: Sequence[Joint], appearance: PartAppearance | None = None
+    ) -> float:
         if test_av is None:
             return float("nan")
-        return float(np.mean(evaluate_psnr(params, test_av, js, config)))
+        return float(np.mean(evaluate_psnr(params, test_av, js, config, appearance)))
 
     t0 = time.perf_counter()
     st_av = static_views(static, np.asarray(static_world_from_camera, np.float64), len(joints))
@@ -187,20 +202,34 @@ def articulate(
 
     t0 = time.perf_counter()
     extent = scene_extent(np.concatenate([np.asarray(static_world_from_camera), dyn_poses]))
-    state = ArticulationState.from_params(labelled, extent)
+    appearance = None
+    if joints and config.appearance_knots:
+        appearance = PartAppearance.neutral(train_av.q, config.appearance_knots)
+    state = ArticulationState.from_params(labelled, extent, appearance)
     region = part_regions(state, train_av, joints, config)
+    uncovered = np.zeros_like(region)
+    bg_seeds = None
+    if config.seed_background:
+        uncovered = uncovered_background(state, train_av, region, joints, config)
+        bg_seeds = seed_unexplained(
+            state, train_av, uncovered, joints, config, LABEL_BACKGROUND, config.seed_background_max_points
+        )
     seeds = seed_unexplained(state, train_av, region, joints, config)
-    state.edit(torch.ones(state.num_gaussians, dtype=torch.bool), seeds)
+    n_before = state.num_gaussians
+    state.edit(torch.ones(n_before, dtype=torch.bool), _concat(bg_seeds, seeds))
     seconds["seed"] = time.perf_counter() - t0
 
     t0 = time.perf_counter()
     trainable = non_background(state)
-    mask1 = region & ~train_av.hand
+    trainable[n_before:] = True
+    if config.region_dilate_px > 0 and uncovered.any():
+        uncovered = np.stack([binary_dilation(u, iterations=config.region_dilate_px) for u in uncovered])
+    mask1 = (region | uncovered) & ~train_av.hand
     run_phase(state, [(train_av, mask1, 1.0)], joints, config, config.phase1_steps, trainable, callback)
-    pruned = prune_faint(state, config, non_background(state))
+    pruned = prune_faint(state, config, trainable)
     seconds["phase1"] = time.perf_counter() - t0
     t0 = time.perf_counter()
-    psnr_phase1 = heldout(state.to_params(), joints)
+    psnr_phase1 = heldout(state.to_params(), joints, state.appearance())
     seconds["evaluate"] += time.perf_counter() - t0
 
     t0 = time.perf_counter()
@@ -214,13 +243,15 @@ def articulate(
     seconds["phase2"] = time.perf_counter() - t0
     params = state.to_params()
     t0 = time.perf_counter()
-    psnr_final = heldout(params, joints) if config.phase2_steps > 0 else psnr_phase1
+    psnr_final = heldout(params, joints, state.appearance()) if config.phase2_steps > 0 else psnr_phase1
     seconds["evaluate"] += time.perf_counter() - t0
     counts = label_counts(params.labels, len(joints))
     counts["seeded"] = seeds.num_gaussians
+    counts["seeded_background"] = 0 if bg_seeds is None else bg_seeds.num_gaussians
     counts["pruned"] = pruned
     return ArticulationResult(
         params=params,
+        appearance=state.appearance(),
         train_frames=train_frames,
         test_frames=test_frames,
         psnr_canonical_db=psnr_canonical,

@@ -57,9 +57,12 @@ def test_phase1_leaves_the_background_untouched_and_adds_revealed_interior(canon
     assert bg.sum() == n_bg
     original = np.isin(np.arange(p.num_gaussians), np.nonzero(bg)[0])
     assert original.any()
-    # Every background Gaussian is an unchanged canonical Gaussian.
+    # Every background Gaussian is an unchanged canonical Gaussian, or one seeded where the
+    # static recording saw nothing (those were trained with the parts).
     canon_rows = {tuple(np.round(m, 7)) for m in canonical.means}
-    assert all(tuple(np.round(m, 7)) in canon_rows for m in p.means[bg])
+    moved = sum(tuple(np.round(m, 7)) not in canon_rows for m in p.means[bg])
+    assert moved <= counts["seeded_background"], (moved, counts["seeded_background"])
+    assert n_bg - moved >= 0.6 * canonical.num_gaussians
     # Seeded interior Gaussians lie behind the closed door, inside the cabinet (z < 0 is inside:
     # the cabinet front is at z = 0 facing +z).
     interior = p.labels == LABEL_INTERIOR
