@@ -10,7 +10,6 @@ from __future__ import annotations
 
 from dataclasses import replace
 
-import numpy as np
 import pytest
 
 from artitwin_core.synth import BENCHMARK_SCENES, generate_scene, write_scene
