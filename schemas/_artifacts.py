@@ -187,6 +187,11 @@ class GaussianCheckpoint(Artifact):
     )
     depth_scale: float = Field(default=1.0, description="The depth sensor's scale error: measured = scale * true + offset.")
     depth_offset_m: float = Field(default=0.0, description="The depth sensor's offset error, metres.")
+    sensor_distortion: list[float] | None = Field(
+        default=None,
+        description="OpenCV k1 k2 p1 p2 of the RGB lens the renders were distorted with (learned, or as the capture "
+        "records it); None = pinhole.",
+    )
 
 
 # ----------------------------------------------------------------------------------------------

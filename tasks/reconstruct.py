@@ -72,12 +72,13 @@ def sensor_fields(model: SensorModel | None) -> dict:
         "sensor_vignetting": None if model.vignetting is None else list(model.vignetting),
         "depth_scale": model.depth_scale,
         "depth_offset_m": model.depth_offset_m,
+        "sensor_distortion": None if model.distortion is None else list(model.distortion),
     }
 
 
 def sensor_model(checkpoint: GaussianCheckpoint) -> SensorModel | None:
     """The sensor model stored with a checkpoint, None when it was trained for an ideal camera."""
-    if not checkpoint.sensor_effects:
+    if not checkpoint.sensor_effects and checkpoint.sensor_distortion is None:
         return None
     return SensorModel(
         effects=tuple(checkpoint.sensor_effects),
@@ -87,10 +88,11 @@ def sensor_model(checkpoint: GaussianCheckpoint) -> SensorModel | None:
         vignetting=None if checkpoint.sensor_vignetting is None else tuple(checkpoint.sensor_vignetting),
         depth_scale=checkpoint.depth_scale,
         depth_offset_m=checkpoint.depth_offset_m,
+        distortion=None if checkpoint.sensor_distortion is None else tuple(checkpoint.sensor_distortion),
     )
 
 
-@stage(name="refine_poses", version=1, config=PoseRefineStageConfig, output=CameraPoses)
+@stage(name="refine_poses", version=2, config=PoseRefineStageConfig, output=CameraPoses)
 def refine_capture_poses(capture: CaptureArtifact, config: PoseRefineStageConfig) -> CameraPoses:
     """Refined camera poses of the static recording, in its own (= the canonical) world frame.
 
@@ -117,7 +119,7 @@ def _with_poses(capture: CaptureArtifact, poses: CameraPoses) -> Capture:
     return to_core(Capture, capture, world_from_camera=poses.world_from_camera)
 
 
-@stage(name="reconstruct", version=1, config=ReconstructConfig, output=GaussianCheckpoint)
+@stage(name="reconstruct", version=2, config=ReconstructConfig, output=GaussianCheckpoint)
 def reconstruct_canonical(capture: CaptureArtifact, poses: CameraPoses, config: ReconstructConfig) -> GaussianCheckpoint:
     """Train the canonical 3DGS model of the static recording with the refined ``poses``.
 
@@ -133,7 +135,7 @@ def reconstruct_canonical(capture: CaptureArtifact, poses: CameraPoses, config: 
     return to_artifact(GaussianCheckpoint, state.to_params(), step=state.step, **sensor_fields(state.sensor_model()))
 
 
-@stage(name="reconstruct_report", version=1, config=ReconstructConfig, output=StageReport)
+@stage(name="reconstruct_report", version=2, config=ReconstructConfig, output=StageReport)
 def reconstruct_report(
     capture: CaptureArtifact, poses: CameraPoses, gaussians: GaussianCheckpoint, config: ReconstructConfig
 ) -> StageReport:
@@ -155,7 +157,8 @@ def reconstruct_report(
     notes = []
     per_frame: dict[str, list[float]] = {}
     if sensor is not None:
-        notes.append(f"Sensor model learned with the Gaussians: {', '.join(sensor.effects)}.")
+        if sensor.effects:
+            notes.append(f"Sensor model learned with the Gaussians: {', '.join(sensor.effects)}.")
         if sensor.log_gain is not None:
             stops = sensor.log_gain.mean(1) / np.log(2.0)
             metrics["sensor_exposure_stops_std"] = float(np.std(stops))
@@ -166,6 +169,10 @@ def reconstruct_report(
         if "depth_scale_offset" in sensor.effects:
             metrics["sensor_depth_scale"] = sensor.depth_scale
             metrics["sensor_depth_offset_m"] = sensor.depth_offset_m
+        if sensor.distortion is not None:
+            for name, value in zip(("k1", "k2", "p1", "p2"), sensor.distortion, strict=True):
+                metrics[f"sensor_lens_{name}"] = value
+            notes.append("The capture records lens distortion; the renders were distorted with it before comparison.")
     if poses.correction_translation is None:
         notes.append("Pose refinement did not run or fell back (low texture?): the capture poses were used.")
     else:

@@ -41,6 +41,7 @@ class TrainViews:
         depth_weight: ``[V, H, W]`` float32 confidence weight (0 = no valid measurement).
         cam_from_world: ``[V, 4, 4]`` float32 world-to-camera transforms (OpenCV axes).
         intrinsics: ``[V, 4]`` float64 RGB ``(fx, fy, cx, cy)`` pixels.
+        distortion: the RGB lens's OpenCV coefficients as the capture records them (None: pinhole).
     """
 
     frames: list[int]
@@ -49,6 +50,7 @@ class TrainViews:
     depth_weight: torch.Tensor
     cam_from_world: torch.Tensor
     intrinsics: np.ndarray
+    distortion: np.ndarray | None = None
 
     @property
     def size(self) -> tuple[int, int]:
@@ -94,6 +96,7 @@ def make_views(capture: Capture, world_from_camera: np.ndarray, frames: Sequence
         depth_weight=torch.from_numpy(np.stack(weight)),
         cam_from_world=torch.from_numpy(cams.astype(np.float32)),
         intrinsics=np.asarray(capture.rgb_intrinsics[frames], np.float64),
+        distortion=None if capture.distortion is None else np.asarray(capture.distortion, np.float64),
     )
 
 
@@ -218,6 +221,10 @@ def view_index(step: int, num_views: int, seed: int) -> int:
     return int(np.random.default_rng((seed, epoch)).permutation(num_views)[pos])
 
 
+def _records_distortion(views: TrainViews) -> bool:
+    return views.distortion is not None and bool(np.any(np.asarray(views.distortion)[:4] != 0))
+
+
 def train_step(state: TrainState, views: TrainViews, config: TrainConfig) -> float:
     """One optimisation step on one training view (plus densification when scheduled).
 
@@ -231,8 +238,8 @@ def train_step(state: TrainState, views: TrainViews, config: TrainConfig) -> flo
         current_sh_degree(state.step, config), config,
     )  # fmt: skip
     out.retain_means2d_grad()
-    if config.sensor_effects and state.sensor is None:
-        state.sensor = SensorParams(config.sensor_effects, views.frames, views.intrinsics, w, h)
+    if state.sensor is None and (config.sensor_effects or _records_distortion(views)):
+        state.sensor = SensorParams(config.sensor_effects, views.frames, views.intrinsics, w, h, views.distortion)
     sensor = state.sensor
     rgb = sensor.rgb(out.rgb, v) if sensor else out.rgb
     loss = photometric_loss(rgb, views.rgb[v], config.lambda_dssim)

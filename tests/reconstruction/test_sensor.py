@@ -45,6 +45,41 @@ def test_numpy_and_torch_forms_agree():
     np.testing.assert_allclose(sp.depth(torch.from_numpy(depth)).detach().numpy(), [[0.0, 1.04, 2.585]], atol=1e-6)
 
 
+def test_lens_distortion_numpy_and_torch_forms_agree_with_the_synthetic_camera():
+    """Both forms sample the pinhole render where each distorted pixel's ray goes: the same place
+    the synthetic camera's ray tracer sends that pixel's ray."""
+    from artitwin_core.synth._render import distort_normalized
+
+    k = np.array([[90.0, 92.0, 40.2, 29.7]])
+    coeffs = (-0.12, 0.03, 0.001, -0.0008)
+    sp = SensorParams((), [0], k, 80, 60, distortion=coeffs)
+    model = sp.to_model()
+    assert model.distortion == pytest.approx(coeffs)
+    # A render that is linear in the pinhole pixel position: sampling it gives the position back.
+    u, v = np.meshgrid(np.arange(80.0), np.arange(60.0))
+    ramp = np.stack([u / 100.0, v / 100.0, 0.5 + 0 * u], -1).astype(np.float32)
+    t = sp.rgb(torch.from_numpy(ramp), 0).detach().numpy()
+    n = model.apply_rgb(ramp, 0, k[0])
+    np.testing.assert_allclose(t, n, atol=2e-5)
+    # Inside the image, the sampled pinhole position distorts back onto the recorded pixel.
+    x, y = (n[..., 0] * 100 - 40.2) / 90.0, (n[..., 1] * 100 - 29.7) / 92.0
+    xd, yd = distort_normalized(x, y, coeffs)
+    inside = (n[..., 0] * 100 > 0.5) & (n[..., 0] * 100 < 78.5) & (n[..., 1] * 100 > 0.5) & (n[..., 1] * 100 < 58.5)
+    assert inside.mean() > 0.9
+    np.testing.assert_allclose((xd * 90.0 + 40.2)[inside], u[inside], atol=2e-3)
+    np.testing.assert_allclose((yd * 92.0 + 29.7)[inside], v[inside], atol=2e-3)
+    # A barrel lens (k1 < 0) shows, at the corner, pinhole content from farther out.
+    assert n[0, 0, 0] * 100 < 0.5 and n[-1, -1, 0] * 100 > 79.0 - 0.5
+
+
+def test_a_pinhole_lens_needs_no_resampling():
+    k = np.array([[90.0, 92.0, 40.0, 30.0]])
+    assert not SensorParams((), [0], k, 80, 60, distortion=np.zeros(5))
+    lens = SensorParams((), [0], k, 80, 60, distortion=np.array([-0.1, 0.0, 0.0, 0.0, 0.0]))
+    assert lens and not lens.params  # applied, nothing learned
+    assert lens.to_model().distortion == pytest.approx((-0.1, 0, 0, 0))
+
+
 def test_heldout_frames_get_gains_interpolated_in_time():
     model = SensorModel(effects=("exposure_white_balance",), frames=np.array([2, 6]),
                         log_gain=np.array([[0.0, 0.0, 0.0], [0.4, 0.2, 0.0]]), offset=np.zeros((2, 3)))
@@ -55,8 +90,8 @@ def test_heldout_frames_get_gains_interpolated_in_time():
 
 
 def test_unknown_effect_is_a_clear_error():
-    with pytest.raises(InputError, match="lens_distortion"):
-        TrainConfig(sensor_effects=("lens_distortion",))
+    with pytest.raises(InputError, match="rolling_shutter"):
+        TrainConfig(sensor_effects=("rolling_shutter",))
 
 
 @pytest.fixture(scope="module")
@@ -88,3 +123,20 @@ def test_training_recovers_injected_vignetting_and_depth_bias(biased_scene):
     # The sensor depth is predicted better, and the images no worse.
     assert with_["depth_mae_m"] < without["depth_mae_m"] - 0.001, (with_, without)
     assert with_["psnr_db"] > without["psnr_db"] - 0.2, (with_, without)
+
+
+def test_training_renders_through_the_lens_the_capture_records():
+    """A capture that records its distortion is trained through it (not as a pinhole camera)."""
+    from artitwin_core.reconstruction import train_step
+
+    spec = replace(BENCHMARK_SCENES["tiny"], hand_occlusion=0.0, static_frames=4, effects=(("lens_distortion", {}),))
+    cap = generate_scene(spec).static
+    assert cap.distortion is not None
+    g0 = init_gaussians(cap, cap.world_from_camera, [0, 1], InitConfig(max_points=500))
+    state = TrainState.from_params(g0, scene_extent(cap.world_from_camera))
+    train_step(state, make_views(cap, cap.world_from_camera, [0, 1]), TrainConfig.with_schedule(10))
+    assert state.sensor_model().distortion == pytest.approx(tuple(cap.distortion[:4]))
+    pinhole = replace(cap, distortion=None)
+    state = TrainState.from_params(g0, scene_extent(cap.world_from_camera))
+    train_step(state, make_views(pinhole, pinhole.world_from_camera, [0, 1]), TrainConfig.with_schedule(10))
+    assert state.sensor is None
