@@ -23,6 +23,7 @@ from dataclasses import dataclass
 import cv2
 import numpy as np
 from scipy.spatial import cKDTree
+from scipy.spatial.transform import Rotation
 
 
 @dataclass(frozen=True)
@@ -163,7 +164,9 @@ def _robust(r: np.ndarray, ok: np.ndarray, floor: float, redescend: bool):
 
 
 def _align(frame: _Frame, motion, xq, nq, tq, params: RigidParams):
-    """Gauss-Newton from ``motion``; returns ``(motion, cost, inlier_fraction, depth_rms)``."""
+    """Gauss-Newton from ``motion``; returns ``(motion, cost, inlier_fraction, depth_rms, ncc)``
+    (``ncc``: ``_appearance`` at the depth inliers, with the fitted exposure gain removed by the
+    correlation's normalisation)."""
     gain = np.array([1.0, 0.0])
     motion = motion.copy()
     n_levels = len(frame.levels)
@@ -171,7 +174,7 @@ def _align(frame: _Frame, motion, xq, nq, tq, params: RigidParams):
         for it in range(params.iterations):
             rd, jd, rp, jp, ok_d, ok_p, _ = _evaluate(frame, level, motion, xq, nq, tq, gain, True)
             if ok_d.sum() < params.min_points:
-                return motion, np.inf, 0.0, np.inf
+                return motion, np.inf, 0.0, np.inf, -1.0
             late = it >= 3
             wd, sd = _robust(rd, ok_d, params.depth_floor_m, late)
             wp, sp = _robust(rp, ok_p, params.grey_floor, late)
@@ -183,14 +186,14 @@ def _align(frame: _Frame, motion, xq, nq, tq, params: RigidParams):
             try:
                 delta = -np.linalg.solve(a, b)
             except np.linalg.LinAlgError:
-                return motion, np.inf, 0.0, np.inf
+                return motion, np.inf, 0.0, np.inf, -1.0
             motion = _exp_se3(delta[:6]) @ motion
             gain = gain + delta[6:]
             if np.linalg.norm(delta[3:6]) < 1e-6 and np.linalg.norm(delta[:3]) < 1e-6:
                 break
     rd, _, rp, _, ok_d, ok_p, visible = _evaluate(frame, n_levels - 1, motion, xq, nq, tq, gain, False)
     if ok_d.sum() < params.min_points:
-        return motion, np.inf, 0.0, np.inf
+        return motion, np.inf, 0.0, np.inf, -1.0
     inl = ok_d & (np.abs(rd) < params.inlier_m)
     frac = float(inl.sum() / max(visible.sum(), 1))
     rms = float(np.sqrt(np.mean(rd[inl] ** 2))) if inl.any() else np.inf
@@ -198,7 +201,24 @@ def _align(frame: _Frame, motion, xq, nq, tq, params: RigidParams):
     cost = float(np.mean(np.minimum(rd[ok_d] ** 2, params.inlier_m**2))) + params.inlier_m**2 * (
         1.0 - ok_d.sum() / max(xq.shape[0], 1)
     )
-    return motion, cost, frac, rms
+    return motion, cost, frac, rms, _appearance(rp + gain[0] * tq + gain[1], tq, ok_p & inl, params.min_points)
+
+
+def _appearance(seen: np.ndarray, tq: np.ndarray, ok: np.ndarray, min_points: int, texture_floor: float = 3.0) -> float:
+    """Correlation of the model's grey levels ``tq [M]`` with the frame's ``seen [M]`` at the
+    aligned points ``ok [M]`` (-1 when too few points are seen, NaN when the model's grey
+    levels vary by less than ``texture_floor``: nothing to compare). A plane's depth cannot tell a door from the same door slid or
+    turned within its plane (a 180 degree flip about its normal fits depth perfectly): only
+    appearance can."""
+    if ok.sum() < min_points:
+        return -1.0
+    a, b = tq[ok], seen[ok]
+    sa, sb = float(np.std(a)), float(np.std(b))
+    if sa < texture_floor:
+        return float("nan")  # an untextured part: appearance can tell nothing
+    if sb < 1e-6:
+        return -1.0
+    return float(np.mean((a - a.mean()) * (b - b.mean())) / (sa * sb))
 
 
 @dataclass(frozen=True)
@@ -214,6 +234,10 @@ class RigidParams:
     inlier_m: float = 0.015
     min_inlier_fraction: float = 0.5
     max_model_points: int = 3000
+    min_ncc: float = 0.5
+    reacquire_scales: tuple[float, ...] = (0.5, 0.75, 1.25, 1.5, 2.0, 2.5, 3.0)
+    max_gap_steps: int = 8
+    max_correction_rad: float = 0.35
 
 
 def track_rigid(
@@ -269,6 +293,7 @@ def track_rigid(
 
     for step in (1, -1):
         prev, prev2 = np.eye(4), None
+        gap = 0  # frames since the last confident one
         t = query_frame + step
         while 0 <= t < t_count:
             frame = _Frame(gray[t], depth[t], allowed(t), poses[t], rgb_intrinsics[t], depth_intrinsics[t],
@@ -278,27 +303,79 @@ def track_rigid(
                 vel = prev @ np.linalg.inv(prev2)
                 starts.append(vel @ prev)
                 starts.append(vel @ vel @ prev)
+                # Re-acquisition after frames without a confident alignment (a hand over the
+                # part, the face seen edge-on): the part kept moving meanwhile, so the motion
+                # is predicted along its current screw (the last motion scaled), and the
+                # constant velocity is extrapolated over the gap.
+                for j in range(3, min(gap, params.max_gap_steps) + 3):
+                    starts.append(np.linalg.matrix_power(vel, j) @ prev)
+            if gap > 0:
+                starts.extend(_scaled_motion(prev, f) for f in params.reacquire_scales)
             if init_motions is not None and np.all(np.isfinite(init_motions[t])):
                 starts.append(init_motions[t])
-            best = None
+            best, best_key = None, None
             for s in starts:
                 out = _align_levels(frame, s, xq, nq, tq_levels, params)
-                if best is None or out[1] < best[1]:
-                    best = out
-            m, _, f, r = best
+                # A start is a prediction of the motion; an alignment that wandered far from
+                # every prediction is another surface that happens to fit (a door's back face,
+                # seen once the door turned past the camera, fits its front face flipped
+                # 180 degrees, grain and all), not the tracked one.
+                ok = _passes(out, params) and _rotation_between(out[0], s) <= params.max_correction_rad
+                # Passing alignments rank by appearance (depth cannot rank a plane's in-plane
+                # slides and flips), the others by depth cost.
+                key = (0, -_ncc_or(out[4], 1.0), out[1]) if ok else (1, out[1], 0.0)
+                if best is None or key < best_key:
+                    best, best_key = out, key
+            m, _, f, r, _ = best
             motions[t], frac[t], rms[t] = m, f, r
-            conf[t] = f >= params.min_inlier_fraction and r < params.inlier_m / 2
+            conf[t] = best_key[0] == 0
             if conf[t]:
                 prev2, prev = prev, m
+                gap = 0
+            else:
+                gap += 1
             t += step
     return RigidTrackResult(motions, conf, frac, rms)
+
+
+def _ncc_or(value: float, default: float) -> float:
+    return default if not np.isfinite(value) else value
+
+
+def _passes(out, params: RigidParams) -> bool:
+    """An alignment is trusted when most visible model points fit the depth and, on a textured
+    part, the grey levels agree too."""
+    _, cost, f, r, ncc = out
+    return bool(
+        np.isfinite(cost) and f >= params.min_inlier_fraction and r < params.inlier_m / 2
+        and _ncc_or(ncc, 1.0) >= params.min_ncc
+    )
+
+
+def _rotation_between(a: np.ndarray, b: np.ndarray) -> float:
+    """Angle (radians) of the rotation taking ``b``'s orientation to ``a``'s."""
+    c = (np.trace(a[:3, :3] @ b[:3, :3].T) - 1.0) / 2.0
+    return float(np.arccos(np.clip(c, -1.0, 1.0)))
+
+
+def _scaled_motion(motion: np.ndarray, factor: float) -> np.ndarray:
+    """``exp(factor log(motion))``: the same screw motion carried ``factor`` times as far."""
+    rotvec = Rotation.from_matrix(motion[:3, :3]).as_rotvec()
+    th = float(np.linalg.norm(rotvec))
+    k = _hat(rotvec)
+    if th < 1e-9:
+        v = motion[:3, 3]
+    else:
+        vinv = np.eye(3) - 0.5 * k + (1 - th * np.sin(th) / (2 * (1 - np.cos(th)))) / th**2 * (k @ k)
+        v = vinv @ motion[:3, 3]
+    return _exp_se3(factor * np.concatenate([v, rotvec]))
 
 
 def _align_levels(frame: _Frame, motion, xq, nq, tq_levels, params: RigidParams):
     """``_align`` with the model's grey levels taken at the matching blur level."""
     # _align runs every level with one grey vector; give it the level-wise vectors by running
     # one level at a time on a one-level view of the frame.
-    out = (motion, np.inf, 0.0, np.inf)
+    out = (motion, np.inf, 0.0, np.inf, -1.0)
     levels = frame.levels
     m = motion
     for i in range(len(levels)):
