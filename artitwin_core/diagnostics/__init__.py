@@ -41,7 +41,6 @@ from artitwin_core.diagnostics._plugin import (
     registered_effects,
 )
 from artitwin_core.diagnostics._report import render_html, write_html_report
-from artitwin_core.diagnostics._runs import RunComparison, RunRecord, compare_runs, comparison_html
 from artitwin_core.diagnostics._residuals import (
     TARGETS,
     ResidualData,
@@ -52,6 +51,7 @@ from artitwin_core.diagnostics._residuals import (
     target_energy,
     track_model_from_joint,
 )
+from artitwin_core.diagnostics._runs import RunComparison, RunRecord, compare_runs, comparison_html
 
 __all__ = [
     "RunComparison",

@@ -61,6 +61,13 @@ def _bilinear(img: np.ndarray, x: np.ndarray, y: np.ndarray) -> tuple[np.ndarray
     return out, ok
 
 
+def _take_frames(data: ResidualData, idx: np.ndarray) -> ResidualData:
+    """The image frames ``idx`` of ``data`` (RGB, depth, intrinsics, poses, times; tracks untouched)."""
+    names = ("rgb_pred", "rgb_meas", "rgb_valid", "rgb_intrinsics", "depth_pred", "depth_meas", "depth_valid",
+             "depth_intrinsics", "world_from_camera", "timestamps")
+    return replace(data, **{n: getattr(data, n)[idx] for n in names if getattr(data, n) is not None})
+
+
 class _Displacement(Effect):
     """An image effect that displaces the prediction: ``meas(u) = pred(u + d(u; theta))``.
 
@@ -91,7 +98,19 @@ class _Displacement(Effect):
     def _theta(self, params: dict) -> np.ndarray:
         return np.array([params[n] for n in self.param_names], np.float64)
 
+    # The parameters are global: a few frames spread in time fix them (the fit costs per frame).
+    max_fit_frames = 8
+
+    def _fit_view(self, data: ResidualData) -> ResidualData:
+        """``data`` cut to at most ``max_fit_frames`` frames with valid pixels, spread in time."""
+        usable = np.flatnonzero(data.rgb_valid.any((1, 2)))
+        if usable.size <= self.max_fit_frames:
+            return data
+        idx = usable[np.unique(np.round(np.linspace(0, usable.size - 1, self.max_fit_frames)).astype(int))]
+        return _take_frames(data, idx)
+
     def _solve(self, data: ResidualData) -> np.ndarray:
+        data = self._fit_view(data)
         theta = np.zeros(len(self.param_names))
         steps = np.asarray(self.steps, np.float64)
         for sigma in self.blurs:
@@ -196,6 +215,13 @@ class LensDistortion(_Displacement):
         return {**params, "max_shift_px": corner}, ev
 
 
+def _rotate(rot: np.ndarray, points: np.ndarray) -> np.ndarray:
+    """``rot [T, 3, 3]`` applied to ``points [T, h, w, 3]`` (a batched matmul; einsum is slow here)."""
+    t_count = points.shape[0]
+    flat = points.reshape(t_count, -1, 3)
+    return np.matmul(flat, np.swapaxes(rot, 1, 2)).reshape(points.shape)
+
+
 def _backproject(depth: np.ndarray, k: np.ndarray, world_from_camera: np.ndarray) -> np.ndarray:
     """``[T, h, w, 3]`` world points (metres) of z-depth maps ``[T, h, w]`` (NaN stays NaN)."""
     t_count, h, w = depth.shape
@@ -203,13 +229,13 @@ def _backproject(depth: np.ndarray, k: np.ndarray, world_from_camera: np.ndarray
     k = k[:, :, None, None]
     z = depth.astype(np.float64)
     cam = np.stack([(u[None] - k[:, 2]) / k[:, 0] * z, (v[None] - k[:, 3]) / k[:, 1] * z, z], -1)
-    return np.einsum("tij,tyxj->tyxi", world_from_camera[:, :3, :3], cam) + world_from_camera[:, None, None, :3, 3]
+    return _rotate(world_from_camera[:, :3, :3], cam) + world_from_camera[:, None, None, :3, 3]
 
 
 def _project(points: np.ndarray, k: np.ndarray, world_from_camera: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Pixel x, y and z-depth (``[T, h, w]`` each) of world points ``[T, h, w, 3]`` in each frame's camera."""
     rot, trans = world_from_camera[:, :3, :3], world_from_camera[:, :3, 3]
-    cam = np.einsum("tji,tyxj->tyxi", rot, points - trans[:, None, None, :])
+    cam = _rotate(np.swapaxes(rot, 1, 2), points - trans[:, None, None, :])
     k = k[:, :, None, None]
     z = cam[..., 2]
     return k[:, 0] * cam[..., 0] / z + k[:, 2], k[:, 1] * cam[..., 1] / z + k[:, 3], z
@@ -247,6 +273,11 @@ class PoseDrift(Effect):
     description = ("Recorded poses drift linearly in time: the measured point cloud needs the rigid correction "
                    "rotation w0 + w1 s (rad), translation v0 + v1 s (m), s seconds since the first frame.")
     iterations = 3
+
+    def null_columns(self, geometry):
+        from artitwin_core.diagnostics._surface_null import drift_columns
+
+        return drift_columns(geometry)
 
     def applies(self, data: ResidualData) -> bool:
         return (data.has_depth and data.has_poses and data.depth_intrinsics is not None
@@ -321,7 +352,7 @@ class PoseDrift(Effect):
         k, poses = data.depth_intrinsics, data.world_from_camera
         p = _backproject(data.depth_pred, k, poses)
         inv = np.linalg.inv(corr)
-        p_sensor = np.einsum("tij,tyxj->tyxi", inv[:, :3, :3], p) + inv[:, None, None, :3, 3]
+        p_sensor = _rotate(inv[:, :3, :3], p) + inv[:, None, None, :3, 3]
         x, y, _ = _project(p_sensor, k, poses)
         # The measured depth there: the prediction interpolated (bilinear) plus the residual of the
         # nearest pixel, so that the sensor noise is not averaged away (the noise model must see it).
@@ -338,8 +369,8 @@ class PoseDrift(Effect):
         # Back-project the sampled depth at the sampled pixel, move it by C_t, read its depth.
         kk = k[:, :, None, None]
         cam = np.stack([(x - kk[:, 2]) / kk[:, 0] * z, (y - kk[:, 3]) / kk[:, 1] * z, z], -1)
-        q = np.einsum("tij,tyxj->tyxi", poses[:, :3, :3], cam) + poses[:, None, None, :3, 3]
-        q = np.einsum("tij,tyxj->tyxi", corr[:, :3, :3], q) + corr[:, None, None, :3, 3]
+        q = _rotate(poses[:, :3, :3], cam) + poses[:, None, None, :3, 3]
+        q = _rotate(corr[:, :3, :3], q) + corr[:, None, None, :3, 3]
         _, _, depth = _project(q, k, poses)
         depth = np.where(np.isfinite(depth) & (depth > 0), depth, np.nan).astype(np.float32)
         # A pixel with no corrected measurement is NaN, which every residual leaves out; the
@@ -358,7 +389,7 @@ class PoseDrift(Effect):
         u, v = np.meshgrid(np.arange(w, dtype=np.float64), np.arange(h, dtype=np.float64))
         p = rgb_world_points(data)
         inv = np.linalg.inv(corr)
-        p_true = np.einsum("tij,tyxj->tyxi", inv[:, :3, :3], p) + inv[:, None, None, :3, 3]
+        p_true = _rotate(inv[:, :3, :3], p) + inv[:, None, None, :3, 3]
         x, y, _ = _project(p_true, data.rgb_intrinsics, data.world_from_camera)
         dx, dy = np.nan_to_num(u[None] - x), np.nan_to_num(v[None] - y)
         img, _ = _bilinear(data.rgb_pred, u[None] + dx, v[None] + dy)
@@ -395,7 +426,7 @@ def image_velocity(data: ResidualData) -> np.ndarray:
     The camera moves, the scene does not: this is the motion field of the recorded camera path.
     NaN where the prediction has no depth.
     """
-    for key, value in _VELOCITY_CACHE:  # one entry: fits call this many times on the same recording
+    for key, value in _VELOCITY_CACHE:  # fits call this many times on the same recording
         if all(a is b for a, b in zip(key, (data.depth_pred, data.world_from_camera, data.rgb_intrinsics), strict=True)):
             return value
     t_count, h, w = data.rgb_valid.shape
@@ -409,8 +440,14 @@ def image_velocity(data: ResidualData) -> np.ndarray:
         others = np.array([min(max(i - n_pts // 2, 0), t_count - n_pts) + j for i in range(t_count)])
         x, y, _ = _project(world, data.rgb_intrinsics[others], poses[others])
         out += _derivative_weights(data.timestamps, n_pts)[:, j, None, None, None] * np.stack([x, y], -1)
-    _VELOCITY_CACHE[:] = [((data.depth_pred, data.world_from_camera, data.rgb_intrinsics), out)]
+    _remember_velocity(data, out)
     return out
+
+
+def _remember_velocity(data: ResidualData, velocity: np.ndarray) -> None:
+    """Cache ``velocity`` for ``data`` (by the identity of its arrays); the last few are kept."""
+    _VELOCITY_CACHE.insert(0, ((data.depth_pred, data.world_from_camera, data.rgb_intrinsics), velocity))
+    del _VELOCITY_CACHE[3:]
 
 
 def rgb_world_points(data: ResidualData) -> np.ndarray:
@@ -428,7 +465,7 @@ def rgb_world_points(data: ResidualData) -> np.ndarray:
     z = np.where(inside, data.depth_pred[frames, np.clip(vd, 0, dh - 1), np.clip(ud, 0, dw - 1)], np.nan)
     poses = data.world_from_camera
     cam = np.stack([xn * z, yn * z, z], -1)
-    return np.einsum("tij,tyxj->tyxi", poses[:, :3, :3], cam) + poses[:, None, None, :3, 3]
+    return _rotate(poses[:, :3, :3], cam) + poses[:, None, None, :3, 3]
 
 
 class _Timing(_Displacement):
@@ -452,6 +489,14 @@ class _Timing(_Displacement):
     def displacement(self, data, theta):
         # No depth, no velocity: such pixels are left where they are.
         return np.nan_to_num(self.seconds(data, theta)[..., None] * image_velocity(data))
+
+    def _fit_view(self, data: ResidualData) -> ResidualData:
+        # The velocity needs the neighbouring frames: computed on the whole recording, then cut.
+        view = super()._fit_view(data)
+        if view is not data:
+            idx = np.searchsorted(data.timestamps, view.timestamps)
+            _remember_velocity(view, image_velocity(data)[idx])
+        return view
 
     def _speed_evidence(self, data: ResidualData, theta: np.ndarray, x_of_pixel: np.ndarray, x_label: str,
                         title: str) -> Evidence:

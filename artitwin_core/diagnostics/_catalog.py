@@ -147,6 +147,11 @@ class DepthScaleOffset(Effect):
                       x.tolist(), y.tolist(), ((s - 1) * x + o).tolist())
         return {"scale": float(s), "offset_m": float(o)}, ev
 
+    def null_columns(self, geometry):
+        from artitwin_core.diagnostics._surface_null import depth_affine_columns
+
+        return depth_affine_columns(geometry)
+
     def apply(self, data: ResidualData, params: dict) -> ResidualData:
         # The sensor's error is removed from the measurement (the twin's geometry stays metric).
         m = (data.depth_meas - params["offset_m"]) / params["scale"]

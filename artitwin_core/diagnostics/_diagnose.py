@@ -10,11 +10,19 @@ round's signatures rank every effect; the enabled ones, in order, are the diagno
 target still holds beyond ``structure_ratio`` noise floors is reported as unexplained structure,
 with the variable it correlates with most (frame index, depth, image radius, joint state).
 The enabled effects are then checked on frames they were not fitted on (``evaluate_heldout``).
+
+A depth effect (``Effect.null_columns``: pose drift, depth scale and offset) can pass for the
+twin's own geometry error, which is fixed in the world, when the camera sees different surfaces at
+different times or distances. Such an effect counts as significant only when it also beats that
+null on held-out frames (``surface_null_check``: a static per-surface correction, and the effect
+fitted on what varies within a surface patch from frame to frame). When nothing is enabled and the depth residual
+left is explained by the static correction, the conclusion says so: the twin needs more training,
+not another effect.
 """
 
 from __future__ import annotations
 
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 
 import numpy as np
 
@@ -22,6 +30,7 @@ from artitwin_core._errors import InputError
 from artitwin_core.diagnostics._heldout import HeldOut, evaluate_heldout
 from artitwin_core.diagnostics._plugin import Effect, Signature, registered_effects
 from artitwin_core.diagnostics._residuals import TARGETS, ResidualData, noise_floor, target_energy
+from artitwin_core.diagnostics._surface_null import SurfaceNullCheck, surface_null_check
 
 # Targets that measure a noise model, not a residual: their effects are enabled after the others.
 NOISE_TARGETS = ("depth-noise",)
@@ -41,6 +50,10 @@ class DiagnoseConfig:
         min_correlation: a correlation ratio (eta^2) below this is not worth naming.
         heldout_every: hold out every n-th frame to check the enabled effects on frames they were
             not fitted on (0: no check).
+        min_gain_over_null: an effect with ``null_columns`` must cut the held-out residual the
+            twin-geometry null leaves by at least this share (``surface_null_check``).
+        min_world_fixed: remaining depth structure of which the static per-surface correction
+            explains at least this share (held out) is the twin's own geometry, not an effect.
     """
 
     min_explained: float = 0.2
@@ -49,6 +62,8 @@ class DiagnoseConfig:
     max_rounds: int = 4
     min_correlation: float = 0.05
     heldout_every: int = 4
+    min_gain_over_null: float = 0.3
+    min_world_fixed: float = 0.5
 
 
 @dataclass(frozen=True)
@@ -60,12 +75,18 @@ class Structure:
         energy: ``target_energy`` after the enabled effects.
         floor: its noise floor.
         correlations: ``{variable: eta^2}`` correlation ratio of the residual with each variable.
+        world_fixed: (depth) share of it a static per-surface correction explains on held-out
+            frames (NaN when not measured).
+        twin_geometry: ``world_fixed`` reaches ``DiagnoseConfig.min_world_fixed``: the structure is
+            the twin's own geometry error (train longer), not a missing effect.
     """
 
     target: str
     energy: float
     floor: float
     correlations: dict[str, float]
+    world_fixed: float = float("nan")
+    twin_geometry: bool = False
 
     @property
     def ratio(self) -> float:
@@ -87,6 +108,8 @@ class Diagnosis:
         residual_after: the data with the enabled effects applied.
         heldout: the enabled effects refitted on training frames and scored on held-out ones
             (None when the check is off or the recording is too short).
+        null_checks: each effect with ``null_columns`` that was significant in some round, against
+            the twin-geometry null (``surface_null_check``), in the order checked.
     """
 
     ranking: list[Signature]
@@ -99,10 +122,12 @@ class Diagnosis:
     conclusion: list[str] = field(default_factory=list)
     residual_after: ResidualData | None = None
     heldout: HeldOut | None = None
+    null_checks: list[SurfaceNullCheck] = field(default_factory=list)
 
     @property
     def no_effect_needed(self) -> bool:
-        return not self.enabled and not self.remaining
+        """Nothing enabled, and whatever structure is left is the twin's own geometry."""
+        return not self.enabled and all(st.twin_geometry for st in self.remaining)
 
 
 def _eta2(x: np.ndarray, y: np.ndarray, n_bins: int = 10) -> float:
@@ -150,6 +175,12 @@ def _correlations(data: ResidualData, target: str) -> dict[str, float]:
         out["frame index"] = _eta2(frame[ok].astype(float), r[ok])
         out["joint state"] = _eta2(q[ok], r[ok])
     return out
+
+
+def _has_null(effect: Effect, data: ResidualData) -> bool:
+    """The effect is checked against the twin-geometry null (it gives columns; the data has poses)."""
+    return (type(effect).null_columns is not Effect.null_columns and data.has_depth and data.has_poses
+            and data.depth_intrinsics is not None)
 
 
 def _floor(data: ResidualData, target: str) -> float:
@@ -202,10 +233,20 @@ def diagnose(
     enabled: list[Signature] = []
     ranking: list[Signature] = []
     significant: tuple[str, ...] = ()
+    null_checks: list[SurfaceNullCheck] = []
+    every = cfg.heldout_every or 4
     for round_ in range(cfg.max_rounds):
         sigs = [_signature(e, current) for e in pool.values()]
         sigs = [s for s in sigs if np.isfinite(s.explained_fraction) and s.target in floors]
         ok = {s.name for s in sigs if _significant(s, floors[s.target], cfg)}
+        for s in sigs:
+            effect = pool[s.name]
+            if s.name in ok and _has_null(effect, current):
+                check = surface_null_check(current, s.name, every, cfg.min_gain_over_null, cfg.min_gain_over_floor,
+                                           columns=effect.null_columns)
+                null_checks.append(check)
+                if not check.accepted:
+                    ok.discard(s.name)
         # Significant effects first: a large share of a residual already at the floor is no finding.
         # Among them, noise models last: a systematic error (a drifting pose, a depth bias) widens
         # the residual's spread too, so the noise is judged on what the systematic effects leave.
@@ -221,15 +262,34 @@ def diagnose(
     after = {t: target_energy(current, t) for t in targets}
     # The floor after: an enabled noise model changes what "only noise left" means for depth.
     floors_after = {t: _floor(current, t) for t in targets}
-    remaining = [
-        Structure(t, after[t], floors_after[t], _correlations(current, t))
-        for t in targets
-        if after[t] > cfg.structure_ratio * floors_after[t]
-    ]
+    remaining = []
+    for t in targets:
+        if after[t] <= cfg.structure_ratio * floors_after[t]:
+            continue
+        st = Structure(t, after[t], floors_after[t], _correlations(current, t))
+        if t == "depth" and current.has_poses and current.depth_intrinsics is not None:
+            fixed = surface_null_check(current, "", every).null_fraction
+            st = replace(st, world_fixed=fixed, twin_geometry=bool(fixed >= cfg.min_world_fixed))
+        remaining.append(st)
     conclusion = []
     for s in enabled:
         conclusion.append(f"{s.name} explains {100 * s.explained_fraction:.0f}% of the {s.target} residual.")
+    last_check = {c.name: c for c in null_checks}  # an effect checked in several rounds: its last word
+    for c in last_check.values():
+        if not c.accepted and c.name not in {s.name for s in enabled}:
+            conclusion.append(
+                f"{c.name} was not enabled: it explains no more than the twin's own geometry does (a static "
+                f"per-surface correction, fixed in the world; on held-out frames it removes "
+                f"{100 * max(c.gain_over_null, 0.0):.0f}% of what that correction leaves)."
+            )
     for st in remaining:
+        if st.twin_geometry:
+            conclusion.append(
+                f"The remaining {st.target} residual ({st.ratio:.1f}x the noise floor) is the twin's own geometry: "
+                f"fixed in the world, a static per-surface correction explains {100 * st.world_fixed:.0f}% of it "
+                "on held-out frames. Train the twin longer."
+            )
+            continue
         named = sorted(((v, k) for k, v in st.correlations.items() if v >= cfg.min_correlation), reverse=True)
         where = (f", correlated with {named[0][1]} (eta^2 = {named[0][0]:.2f})") if named else ""
         conclusion.append(
@@ -237,6 +297,9 @@ def diagnose(
         )
     if not enabled and not remaining:
         conclusion.append("No effect needed: every residual is at the noise floor.")
+    elif not enabled and all(st.twin_geometry for st in remaining):
+        conclusion.insert(0, "No effect needed: the remaining residual is the twin's own geometry (fixed in the "
+                             "world); train the twin longer.")
     elif not enabled:
         conclusion.insert(0, "No known effect explains a significant share of the residual.")
     heldout = (evaluate_heldout(data, [effects_by_name[s.name] for s in enabled], cfg.heldout_every)
@@ -247,4 +310,5 @@ def diagnose(
                 f"On held-out frames, {c.name} could not be refitted on the training frames ({c.failed})." if c.failed
                 else f"On held-out frames, {c.name} takes {c.error} from {c.error_before:.4g} to {c.error_after:.4g}."
             )
-    return Diagnosis(ranking, enabled, before, after, floors, significant, remaining, conclusion, current, heldout)
+    return Diagnosis(ranking, enabled, before, after, floors, significant, remaining, conclusion, current, heldout,
+                     null_checks)

@@ -113,3 +113,27 @@ def synthetic_residual_data(
         depth_sigma=depth_sigma, timestamps=cap.timestamps, depth_intrinsics=cap.depth_intrinsics,
         world_from_camera=cap.world_from_camera, **kw,
     )
+
+
+def perturb_twin_depth(data: ResidualData, amplitude_m: float = 0.02, wavelength_m: float = 2.0,
+                       offset_m: float = 0.0) -> ResidualData:
+    """``data`` whose predicted depth comes from a twin with its own, world-fixed geometry error.
+
+    Every predicted surface point moves along its normal by ``offset_m + amplitude_m cos(2 pi x / L)
+    cos(2 pi z / L)`` (world x, z; ``L = wavelength_m``): the same error in every frame that sees
+    that place, as an unconverged twin has. The RGB prediction is left as it is.
+    """
+    from artitwin_core.diagnostics._camera import _backproject, _normals
+
+    k, poses = data.depth_intrinsics, data.world_from_camera
+    p = _backproject(data.depth_pred, k, poses)
+    n = _normals(p)
+    ray = p - poses[:, None, None, :3, 3]
+    dist = np.linalg.norm(ray, axis=-1)
+    cos = np.abs(np.sum(n * ray, -1)) / np.maximum(dist, 1e-9)
+    two_pi = 2 * np.pi / wavelength_m
+    delta = offset_m + amplitude_m * np.cos(two_pi * p[..., 0]) * np.cos(two_pi * p[..., 2])
+    # A surface moved back by delta along its normal is hit delta / cos further along the ray.
+    change = delta / np.maximum(cos, 0.3) * data.depth_pred / np.maximum(dist, 1e-9)
+    pred = np.where(np.isfinite(change), data.depth_pred + change, data.depth_pred).astype(np.float32)
+    return replace(data, depth_pred=pred)
