@@ -12,7 +12,15 @@ prediction, so a door swung by 0.2 rad between frames stays within the basin of 
 
 Unlike chained 2D tracking, nothing here needs frame-to-frame image similarity: a frame is
 aligned to the model directly, so a frame that fails (hand over the part, motion blur) does not
-end the track; the next frame starts again from the prediction.
+end the track; the next frame starts again from the prediction. After such a gap the part kept
+moving, so the starts also carry the last motion further along its screw and extrapolate the
+velocity over the gap.
+
+An alignment is trusted only if (a) most visible model points fit the depth, (b) on a textured
+part its grey levels correlate with the frame's (depth cannot tell a plane from itself slid or
+flipped within the plane) and (c) it stayed within ``max_correction_rad`` of the prediction it
+started from. Without (b) and (c), a door whose front had turned out of view was "found" on its
+back face, flipped 180 degrees, and its tracks came back with wrong identities.
 """
 
 from __future__ import annotations
