@@ -202,8 +202,10 @@ def diagnose(
         html_out.parent.mkdir(parents=True, exist_ok=True)
         html_out.write_text(report.html, encoding="utf-8")
         console.print(f"report: {html_out}")
-    elif (where / "diagnosis.html").is_file():
-        console.print(f"report: {where / 'diagnosis.html'}")
+    else:
+        for name in ("diagnosis.html", "diagnosis_dynamic.html"):
+            if (where / name).is_file():
+                console.print(f"report: {where / name}")
 
 
 @app.command()

@@ -69,6 +69,15 @@ def scene_pipeline(scene: str | Path, config: PipelineConfig, ex: Executor) -> d
         "scene",
     )
     # Model against measurement: the twin's predictions beside what the sensors measured
+    dyn_prediction = h["predict_dynamic"] = ex.submit(
+        "predict_dynamic",
+        config.predict_views,
+        {"twin": twin, "dynamic": dynamic, "registration": reg, "masks": masks, "joints": joints},
+        "dynamic",
+    )
+    h["diagnose_dynamic"] = ex.submit(
+        "diagnose_dynamic", config.diagnose, {"dynamic": dynamic, "prediction": dyn_prediction}, "dynamic"
+    )
     prediction = h["predict_views"] = ex.submit(
         "predict_views", config.predict_views, {"capture": static, "poses": poses, "checkpoint": gaussians}, "static"
     )
@@ -169,8 +178,9 @@ def build_summary(
 
 
 def write_exports(store: ArtifactStore, runs: dict[str, StageRun], out_dir: str | Path) -> dict[str, str]:
-    """Write the export bundle's files under ``out_dir/export`` and the diagnosis report as
-    ``out_dir/diagnosis.html``; return ``{path relative to out_dir: written path}``.
+    """Write the export bundle's files under ``out_dir/export`` and the diagnosis reports as
+    ``out_dir/diagnosis.html`` (static recording and joints) and ``out_dir/diagnosis_dynamic.html``
+    (the articulated twin against the dynamic recording); return ``{path relative to out_dir: written path}``.
 
     Files are written to a staging folder that replaces ``export/`` in one rename, so an
     interrupted run leaves the previous export whole.
@@ -181,11 +191,12 @@ def write_exports(store: ArtifactStore, runs: dict[str, StageRun], out_dir: str 
             html = store.get(run.key, DiagnosisReport).html
             if html:
                 Path(out_dir).mkdir(parents=True, exist_ok=True)
-                target = Path(out_dir) / "diagnosis.html"
-                tmp = target.with_name(f".diagnosis.html.{os.getpid()}.tmp")
+                name = "diagnosis.html" if run.stage == "diagnose" else f"diagnosis{run.stage[len('diagnose'):]}.html"
+                target = Path(out_dir) / name
+                tmp = target.with_name(f".{name}.{os.getpid()}.tmp")
                 tmp.write_text(html)
                 os.replace(tmp, target)
-                written["diagnosis.html"] = str(target)
+                written[name] = str(target)
     runs_export = [r for r in runs.values() if r.kind == ExportBundle.kind]
     if not runs_export:
         return written

@@ -14,6 +14,7 @@ from infra.store import ArtifactStore
 from schemas import DiagnosisReport
 
 STATIC_SCOPE = "static recording"
+DYNAMIC_SCOPE = "dynamic recording"
 
 
 def read_summary(path: str | Path) -> tuple[Path, dict[str, Any]]:
@@ -30,18 +31,39 @@ def read_summary(path: str | Path) -> tuple[Path, dict[str, Any]]:
     return file.parent, summary
 
 
+DIAGNOSIS_STAGES = ("diagnose", "diagnose_dynamic")  # the static recording and joints; the dynamic recording
+
+
 def diagnosis_of(summary: dict[str, Any], where: Path) -> DiagnosisReport | None:
-    """The run's diagnosis report from its store (None when the run had no diagnose stage)."""
-    entry = summary["stages"].get("diagnose")
-    if entry is None:
+    """The run's diagnosis from its store: the ``diagnose`` report, with the dynamic recording's
+    (``diagnose_dynamic``) findings, metrics, curves and conclusion merged in when the run has
+    it. None when the run had no diagnose stage."""
+    reports = []
+    for stage in DIAGNOSIS_STAGES:
+        entry = summary["stages"].get(stage)
+        if entry is None:
+            continue
+        try:
+            reports.append(ArtifactStore(summary["store"]).get(entry["key"], DiagnosisReport))
+        except (KeyError, FileNotFoundError, OSError) as e:
+            raise InputError(
+                f"{where}: the {stage} report {entry.get('key', '?')[:16]} is not in the store {summary.get('store')!r} ({e}); "
+                "pass the run's --store or rerun the scene."
+            ) from None
+    if not reports:
         return None
-    try:
-        return ArtifactStore(summary["store"]).get(entry["key"], DiagnosisReport)
-    except (KeyError, FileNotFoundError, OSError) as e:
-        raise InputError(
-            f"{where}: the diagnosis {entry.get('key', '?')[:16]} is not in the store {summary.get('store')!r} ({e}); "
-            "pass the run's --store or rerun the scene."
-        ) from None
+    first = reports[0]
+    return first.model_copy(update={
+        "findings": [f for r in reports for f in r.findings],
+        "enabled": [e for r in reports for e in r.enabled],
+        "metrics": {k: v for r in reports for k, v in r.metrics.items() if k not in ("enabled_count", "significant_count")}
+        | {"enabled_count": float(sum(len(r.enabled) for r in reports)),
+           "significant_count": float(sum(f.significant for r in reports for f in r.findings))},
+        "per_frame": {k: v for r in reports for k, v in r.per_frame.items()},
+        "conclusion": [c for r in reports for c in r.conclusion],
+        "no_effect_needed": all(r.no_effect_needed for r in reports),
+        "images": [i for r in reports for i in r.images],
+    })  # fmt: skip
 
 
 def run_record(path: str | Path) -> RunRecord:
@@ -55,7 +77,9 @@ def run_record(path: str | Path) -> RunRecord:
     per_frame: dict[str, list[float]] = {}
     heldout: dict[str, list[int]] = {}
     report = diagnosis_of(summary, where)
-    holdout_every = ((summary.get("config") or {}).get("reconstruct") or {}).get("holdout_every")
+    config = summary.get("config") or {}
+    holdout_every = (config.get("reconstruct") or {}).get("holdout_every")
+    dynamic_holdout_every = (config.get("articulate") or {}).get("holdout_every")
     if report is not None:
         for k, v in report.per_frame.items():
             if not k.endswith("_before"):  # "_after" is the diagnosis's what-if, not the twin
@@ -64,6 +88,8 @@ def run_record(path: str | Path) -> RunRecord:
             per_frame[name] = [float("nan") if x is None else float(x) for x in v]
             if k.startswith(STATIC_SCOPE + "/") and holdout_every is not None:
                 heldout[name] = split_frames(len(v), int(holdout_every))[1]
+            elif k.startswith(DYNAMIC_SCOPE + "/") and dynamic_holdout_every is not None:
+                heldout[name] = split_frames(len(v), int(dynamic_holdout_every))[1]
     return RunRecord(
         name=str(where), effects=list(summary.get("effects", [])), metrics=metrics, per_frame=per_frame, heldout=heldout
     )

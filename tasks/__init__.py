@@ -7,7 +7,7 @@ holds the registered stage descriptors by name.
 from tasks._convert import to_artifact, to_core
 from tasks._stage import STAGES, Stage, stage
 from tasks.articulate import articulate_report, articulate_twin
-from tasks.diagnose import diagnose_twin, predict_views
+from tasks.diagnose import diagnose_dynamic, diagnose_twin, predict_dynamic, predict_views
 from tasks.export import export_twin
 from tasks.ingest import check_capture, ingest_recording
 from tasks.joints import fit_joints
@@ -21,11 +21,13 @@ __all__ = [
     "articulate_report",
     "articulate_twin",
     "check_capture",
+    "diagnose_dynamic",
     "diagnose_twin",
     "export_twin",
     "fit_joints",
     "ingest_recording",
     "label_parts",
+    "predict_dynamic",
     "predict_views",
     "reconstruct_canonical",
     "reconstruct_report",

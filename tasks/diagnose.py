@@ -5,6 +5,11 @@ the RGB size, depth at the depth size). ``diagnose`` compares a prediction with 
 each fitted joint with its part's 3D tracks, ranks the physical-effect plugins by the residual
 they explain, and returns the ranking, the energies before and after, per-frame error curves and
 an HTML report. Either half may be empty: an empty ``JointSet`` diagnoses the sensor alone.
+
+``predict_dynamic`` and ``diagnose_dynamic`` do the same for the dynamic recording with the
+articulated twin (stage IV): each frame rendered with the parts at the fitted joint states q(t),
+at the registered camera poses, hand pixels left out (the twin has no hand). Its frames run from
+closed to open, so its per-frame curves say at which joint states the twin fails.
 """
 
 from __future__ import annotations
@@ -16,6 +21,7 @@ import numpy as np
 from PIL import Image
 
 from artitwin_core import InputError
+from artitwin_core.articulation import render_twin
 from artitwin_core.diagnostics import DiagnoseConfig as CoreDiagnoseConfig
 from artitwin_core.diagnostics import (
     Diagnosis,
@@ -37,6 +43,8 @@ from schemas import (
     CaptureArtifact,
     GaussianCheckpoint,
     JointSet,
+    MaskSequenceArtifact,
+    Registration,
     ReportImage,
     TrajectoriesArtifact,
 )
@@ -52,6 +60,7 @@ from tasks._stage import stage
 from tasks.reconstruct import sensor_model
 
 STATIC_SCOPE = "static recording"
+DYNAMIC_SCOPE = "dynamic recording"
 
 
 @stage(name="predict_views", version=2, config=PredictViewsConfig, output=ViewPrediction)
@@ -86,6 +95,54 @@ def predict_views(
         cover.append(alpha >= config.min_alpha)
     return ViewPrediction(rgb=np.stack(rgb), depth=np.stack(depth), coverage=np.stack(cover),
                           frame_ids=capture.frame_ids.copy(), world_from_camera=np.asarray(poses.world_from_camera, np.float64))
+
+
+@stage(name="predict_dynamic", version=1, config=PredictViewsConfig, output=ViewPrediction)
+def predict_dynamic(
+    twin: GaussianCheckpoint,
+    dynamic: CaptureArtifact,
+    registration: Registration,
+    masks: MaskSequenceArtifact,
+    joints: JointSet,
+    config: PredictViewsConfig,
+) -> ViewPrediction:
+    """Render the articulated twin at every dynamic frame: parts moved to the fitted q(t), cameras
+    at the dynamic poses mapped into the canonical frame by the registration.
+
+    Coverage leaves out the pipeline's hand pixels, and the depth prediction is NaN under them,
+    so the hand (which the twin does not model) is not counted as the twin's error. The poses
+    recorded are the canonical ones the twin was rendered at.
+    """
+    t_frames = dynamic.rgb.shape[0]
+    if masks.hand.shape[0] != t_frames or any(len(j.q) != t_frames for j in joints.joints):
+        raise InputError(
+            f"predict_dynamic: the masks ({masks.hand.shape[0]} frames) and joint states "
+            f"({[len(j.q) for j in joints.joints]} frames) must cover the dynamic recording's {t_frames} frames; "
+            "give the part_masks and fit_joints results of this recording."
+        )
+    params = to_core(GaussianParams, twin)
+    js = [to_core(Joint, j) for j in joints.joints]
+    poses = registration.canonical_from_session @ np.asarray(dynamic.world_from_camera, np.float64)
+    _, h, w, _ = dynamic.rgb.shape
+    _, dh, dw = dynamic.depth.shape
+    rgb, depth, cover = [], [], []
+    for t in range(t_frames):
+        q = [float(j.q[t]) for j in js]
+        colour, _, alpha = render_twin(params, js, q, poses[t], dynamic.rgb_intrinsics[t], w, h, backend=config.backend)
+        _, z, alpha_d = render_twin(params, js, q, poses[t], dynamic.depth_intrinsics[t], dw, dh, backend=config.backend)
+        hand = np.asarray(masks.hand[t], bool)
+        # The hand mask on the depth grid: a depth pixel is the hand's if any RGB pixel it spans is.
+        yy = np.minimum((np.arange(dh)[:, None] * h) // dh, h - 1)
+        xx = np.minimum((np.arange(dw)[None, :] * w) // dw, w - 1)
+        hand_d = np.zeros((dh, dw), bool)
+        for oy in range(max(1, h // dh)):
+            for ox in range(max(1, w // dw)):
+                hand_d |= hand[np.minimum(yy + oy, h - 1), np.minimum(xx + ox, w - 1)]
+        rgb.append(np.round(np.clip(colour, 0, 1) * 255).astype(np.uint8))
+        depth.append(np.where((alpha_d >= config.min_alpha) & ~hand_d, z, np.nan).astype(np.float32))
+        cover.append((alpha >= config.min_alpha) & ~hand)
+    return ViewPrediction(rgb=np.stack(rgb), depth=np.stack(depth), coverage=np.stack(cover),
+                          frame_ids=np.asarray(dynamic.frame_ids, np.int64).copy(), world_from_camera=poses)
 
 
 def _json_safe(value):
@@ -247,3 +304,11 @@ def diagnose_twin(
 ) -> DiagnosisReport:
     """Diagnose the twin: the static recording against its predicted views, each joint against its tracks."""
     return report_from_sections(diagnose_sections(capture, prediction, joints, trajectories, config))
+
+
+@stage(name="diagnose_dynamic", version=1, config=DiagnoseConfig, output=DiagnosisReport)
+def diagnose_dynamic(dynamic: CaptureArtifact, prediction: ViewPrediction, config: DiagnoseConfig) -> DiagnosisReport:
+    """Diagnose the articulated twin against the dynamic recording (``predict_dynamic``)."""
+    data = _sensor_data(dynamic, prediction, config)
+    section = (DYNAMIC_SCOPE, run_diagnosis(data, _effects(config), _core_config(config)), data)
+    return report_from_sections([section], title="ArtiTwin diagnosis: the dynamic recording")

@@ -68,7 +68,8 @@ def test_scene_flow_writes_summary_and_reruns_from_cache(tmp_path, tiny_scene):
     assert set(summary["stages"]) == {
         "ingest/static", "ingest/dynamic", "capture_check/static", "capture_check/dynamic", "refine_poses",
         "reconstruct", "reconstruct_report", "register", "part_masks", "track", "fit_joints",
-        "articulate", "articulate_report", "predict_views", "diagnose", "export",
+        "articulate", "articulate_report", "predict_views", "diagnose", "predict_dynamic", "diagnose_dynamic",
+        "export",
     }
     assert all(s["status"] == "computed" for s in summary["stages"].values())
     check = summary["stages"]["capture_check/static"]["metrics"]
@@ -90,6 +91,51 @@ def test_scene_flow_writes_summary_and_reruns_from_cache(tmp_path, tiny_scene):
     # The diagnosis compares the twin with the static recording and says what it found.
     assert summary["stages"]["diagnose"]["notes"], summary["stages"]["diagnose"]
     assert "<svg" in Path(summary["exports"]["diagnosis.html"]).read_text()
+    _check_dynamic_prediction(store, summary, tiny_scene)
     second = reconstruct_scene(str(tiny_scene), config=config, store=store, out=str(out))
     assert all(s["status"] == "cached" for s in second["stages"].values())
     assert {k: s["key"] for k, s in second["stages"].items()} == {k: s["key"] for k, s in first["stages"].items()}
+
+
+def _check_dynamic_prediction(store_url: str, summary: dict, scene_dir: Path) -> None:
+    """The articulated twin predicts the dynamic recording: where the fitted joint state is right
+    and the door well open, the door is drawn where it opened to (its true pixels get the measured
+    depth, which a closed door would miss); the hand is left out; the dynamic recording gets its
+    own diagnosis."""
+    from artitwin_core.articulation import render_twin
+    from artitwin_core.gaussians import GaussianParams
+    from artitwin_core.joints import Joint
+    from artitwin_core.synth import BENCHMARK_SCENES, generate_scene
+    from infra.store import ArtifactStore
+    from schemas import (
+        CaptureArtifact,
+        DiagnosisReport,
+        GaussianCheckpoint,
+        JointSet,
+        MaskSequenceArtifact,
+        Registration,
+    )
+    from schemas._diagnose import ViewPrediction
+    from tasks import to_core
+
+    st = ArtifactStore(store_url)
+    get = lambda name, kind: st.get(summary["stages"][name]["key"], kind)  # noqa: E731
+    pred, dyn = get("predict_dynamic", ViewPrediction), get("ingest/dynamic", CaptureArtifact)
+    assert pred.rgb.shape == dyn.rgb.shape and pred.depth.shape == dyn.depth.shape
+    assert not (pred.coverage & get("part_masks", MaskSequenceArtifact).hand).any()  # the twin has no hand
+    truth = generate_scene(BENCHMARK_SCENES["tiny"]).truth
+    q_true, q_fit = truth.joints[0].q, get("fit_joints", JointSet).joints[0].q
+    t = int(np.flatnonzero((q_true > 0.4) & (np.abs(q_fit - q_true) < 0.05))[0])
+    part = truth.part_masks[t][::2, ::2] == 1  # RGB -> depth grid (2:1 in the tiny scene)
+    twin = to_core(GaussianParams, get("articulate", GaussianCheckpoint))
+    joint = to_core(Joint, get("fit_joints", JointSet).joints[0])
+    pose = get("register", Registration).canonical_from_session @ dyn.world_from_camera[t]
+    _, closed, _ = render_twin(twin, [joint], [0.0], pose, dyn.depth_intrinsics[t], dyn.depth.shape[2], dyn.depth.shape[1])
+    ok = part & np.isfinite(pred.depth[t]) & (dyn.depth[t] > 0) & (closed > 0)
+    assert ok.sum() > 50, ok.sum()
+    err_twin = np.median(np.abs(pred.depth[t] - dyn.depth[t])[ok])
+    err_closed = np.median(np.abs(closed - dyn.depth[t])[ok])
+    assert err_twin < 0.05 and err_twin < 0.5 * err_closed, (t, err_twin, err_closed)
+    report = get("diagnose_dynamic", DiagnosisReport)
+    assert report.findings and {f.scope for f in report.findings} == {"dynamic recording"}
+    assert "diagnosis_dynamic.html" in summary["exports"]
