@@ -46,6 +46,16 @@ class DiagnoseConfig(StageConfig):
         default=2.0, gt=0, description="A residual left above this many noise floors is reported as unexplained structure."
     )
     max_rounds: int = Field(default=4, ge=1, description="At most this many effects are enabled, greedily.")
+    min_gain_over_null: float = Field(
+        default=0.3, ge=0, le=1,
+        description="Share of what the twin-geometry null (a static per-surface correction) leaves that pose drift "
+        "or a depth bias must remove on held-out frames to be enabled.",
+    )
+    min_world_fixed: float = Field(
+        default=0.5, ge=0, le=1,
+        description="Share of the remaining depth structure a static per-surface correction must explain for the "
+        "report to call it the twin's own geometry (no effect needed; train the twin longer).",
+    )
     depth_sigma_a_m: float = Field(
         default=0.001, gt=0, description="Depth noise the twin assumes, sigma(z) = a + b z^2: a, metres."
     )

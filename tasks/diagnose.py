@@ -213,6 +213,7 @@ def _core_config(config: DiagnoseConfig) -> CoreDiagnoseConfig:
     return CoreDiagnoseConfig(
         min_explained=config.min_explained, min_gain_over_floor=config.min_gain_over_floor,
         structure_ratio=config.structure_ratio, max_rounds=config.max_rounds, heldout_every=config.heldout_every,
+        min_gain_over_null=config.min_gain_over_null, min_world_fixed=config.min_world_fixed,
     )
 
 
@@ -294,7 +295,7 @@ def report_from_sections(sections: list[tuple[str, Diagnosis, ResidualData]], ti
     )
 
 
-@stage(name="diagnose", version=3, config=DiagnoseConfig, output=DiagnosisReport)
+@stage(name="diagnose", version=4, config=DiagnoseConfig, output=DiagnosisReport)
 def diagnose_twin(
     capture: CaptureArtifact,
     prediction: ViewPrediction,
@@ -306,7 +307,7 @@ def diagnose_twin(
     return report_from_sections(diagnose_sections(capture, prediction, joints, trajectories, config))
 
 
-@stage(name="diagnose_dynamic", version=1, config=DiagnoseConfig, output=DiagnosisReport)
+@stage(name="diagnose_dynamic", version=2, config=DiagnoseConfig, output=DiagnosisReport)
 def diagnose_dynamic(dynamic: CaptureArtifact, prediction: ViewPrediction, config: DiagnoseConfig) -> DiagnosisReport:
     """Diagnose the articulated twin against the dynamic recording (``predict_dynamic``)."""
     data = _sensor_data(dynamic, prediction, config)
