@@ -26,7 +26,15 @@ effect the twin-geometry null guards (pose_drift, depth_scale_offset) was enable
 static per-surface correction, then with the drift on top); ``pose_drift + twin error`` must still
 find the drift.
 
-Run: ``python bench/bench_diagnostics.py [--seeds 5]``; writes ``bench/results/diagnostics.json``.
+The prediction is also rendered densely (``synthetic_residual_data(dense_prediction=True)``: 3x
+point samples for the point-sampled scenes, the 2x2 sub-pixels for the anti-aliased ``(dense)``
+ones), which the lens and timing effects resample instead of the 1x render;
+``--no-dense-prediction`` leaves it out (the 1x resampling of before).
+
+Run: ``python bench/bench_diagnostics.py [--seeds 5] [--first-seed 100] [--effects lens_distortion
+"rolling_shutter (dense)" clean ...] [--no-dense-prediction]``; ``--effects`` keeps the rows whose
+label starts with one of the words (``clean``, ``twin`` for those rows). Writes
+``bench/results/diagnostics.json`` (a partial run: ``diagnostics_partial.json``).
 """
 
 from __future__ import annotations
@@ -90,17 +98,28 @@ CASES = [
 def main() -> None:
     ap = argparse.ArgumentParser()
     ap.add_argument("--seeds", type=int, default=5)
+    ap.add_argument("--first-seed", type=int, default=100)
+    ap.add_argument("--effects", nargs="*", default=None, help="row labels (prefixes) to run; default all")
+    ap.add_argument("--no-dense-prediction", action="store_true", help="resample the 1x prediction (as before)")
     args = ap.parse_args()
+    dense_pred = not args.no_dense_prediction
+
+    def wanted(label: str) -> bool:
+        return args.effects is None or any(label.startswith(e) for e in args.effects)
+
     base = replace(BENCHMARK_SCENES["tiny"], hand_occlusion=0.0)
-    seeds = range(100, 100 + args.seeds)
+    seeds = range(args.first_seed, args.first_seed + args.seeds)
     rows = []
     t0 = time.perf_counter()
     for name, params, furniture, expected, pname, err, *spec in CASES:
         first, perr, before, after, tops, ho_before, ho_after, ho_err = [], [], [], [], [], [], [], ""
         over = spec[0] if spec else {}
+        label = name + "".join(f" {k}={v}" for k, v in params.items() if k != "record") + (" (dense)" if over else "")
+        if not wanted(label):
+            continue
         for seed in seeds:
             sc = generate_scene(replace(base, furniture=furniture, effects=((name, params),), seed=seed, **over))
-            dg = diagnose(synthetic_residual_data(sc, seed=seed))
+            dg = diagnose(synthetic_residual_data(sc, seed=seed, dense_prediction=dense_pred))
             ok = bool(dg.ranking and dg.ranking[0].name == expected and dg.enabled and dg.enabled[0].name == expected)
             first.append(ok)
             tops.append(dg.ranking[0].name if dg.ranking else "(none)")
@@ -114,7 +133,6 @@ def main() -> None:
                 perr.append(err(sc, sig.params))
                 before.append(sig.energy_before)
                 after.append(dg.energy_after[sig.target])
-        label = name + "".join(f" {k}={v}" for k, v in params.items() if k != "record") + (" (dense)" if over else "")
         rows.append({"effect": label, "expected": expected, "ranked_first": max(set(tops), key=tops.count),
                      "first": float(np.mean(first)), "param": pname,
                      "param_err": float(np.mean(perr)), "before": float(np.mean(before)),
@@ -123,10 +141,12 @@ def main() -> None:
                      "ho_after": float(np.mean(ho_after)) if ho_after else float("nan")})
         print(f"  {name}: {time.perf_counter() - t0:.0f} s", flush=True)
     for furniture, over in (("door", {}), ("drawer", {}), ("door", DENSE)):
+        if not wanted(f"clean {furniture}" + (" (dense)" if over else "")):
+            continue
         fp, ho_before, ho_after = [], [], []
         for seed in seeds:
             sc = generate_scene(replace(base, furniture=furniture, seed=seed, **over))
-            dg = diagnose(synthetic_residual_data(sc, seed=seed))
+            dg = diagnose(synthetic_residual_data(sc, seed=seed, dense_prediction=dense_pred))
             fp.append([s.name for s in dg.enabled])
             ho_before.append(dg.heldout.errors_before["track_rms_m"])
             ho_after.append(dg.heldout.errors_after["track_rms_m"])
@@ -138,10 +158,13 @@ def main() -> None:
                      "ho_after": float(np.mean(ho_after))})
     twin = {"amplitude_m": 0.03, "wavelength_m": 2.0, "offset_m": 0.02}
     for label, effects in (("twin error", ()), ("pose_drift + twin error", (("pose_drift", {}),))):
+        if not wanted(label):
+            continue
         hits, null_e, eff_e, ho_before, ho_after = [], [], [], [], []
         for seed in seeds:
             sc = generate_scene(replace(base, furniture="door", effects=effects, seed=seed))
-            dg = diagnose(perturb_twin_depth(synthetic_residual_data(sc, seed=seed), **twin))
+            data = synthetic_residual_data(sc, seed=seed, dense_prediction=dense_pred)
+            dg = diagnose(perturb_twin_depth(data, **twin))
             on = [s.name for s in dg.enabled]
             hits.append(bool(on and on[0] == "pose_drift") if effects else
                         not ({"pose_drift", "depth_scale_offset"} & set(on)))
@@ -162,7 +185,8 @@ def main() -> None:
                      "ho_after": float(np.mean(ho_after))})
         print(f"  {label}: {time.perf_counter() - t0:.0f} s", flush=True)
     print_table(rows)
-    write_results("diagnostics", rows, {"seeds": list(seeds), "seconds": time.perf_counter() - t0})
+    meta = {"seeds": list(seeds), "seconds": time.perf_counter() - t0, "dense_prediction": dense_pred}
+    write_results("diagnostics" if args.effects is None else "diagnostics_partial", rows, meta)
 
 
 if __name__ == "__main__":

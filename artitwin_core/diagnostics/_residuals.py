@@ -98,6 +98,16 @@ class ResidualData:
         depth_intrinsics: ``[T, 4]`` (fx, fy, cx, cy) pixels of the depth map.
         world_from_camera: ``[T, 4, 4]`` the recorded camera poses (OpenCV axes) the prediction was
             rendered at; the RGB and depth cameras share them (as ARKit's do).
+        rgb_pred_hi: optional ``[T, sH, sW, 3]`` float32 predicted linear RGB sampled ``s`` times
+            denser (``s = rgb_pred_scale``): sample (i, j) at RGB pixel ((j + 0.5) / s - 0.5,
+            (i + 0.5) / s - 0.5). The displacement effects (lens, timing) resample it instead of
+            ``rgb_pred`` (bilinear resampling of a 1x render leaves edges wrong by more than the
+            lens moves them) and reduce it to the RGB pixels with ``rgb_pred_sampling``; None:
+            they resample ``rgb_pred``.
+        rgb_pred_scale: ``s``, 1 when there is no ``rgb_pred_hi``.
+        rgb_pred_sampling: how the capture records a pixel from its sub-pixels: ``"box"`` (their
+            mean: a sensor integrating over the pixel, or s x s anti-aliasing) or ``"point"`` (the
+            centre sub-pixel, odd ``s``: a point-sampled render).
     """
 
     rgb_pred: np.ndarray | None = None
@@ -115,6 +125,9 @@ class ResidualData:
     timestamps: np.ndarray | None = None
     depth_intrinsics: np.ndarray | None = None
     world_from_camera: np.ndarray | None = None
+    rgb_pred_hi: np.ndarray | None = None
+    rgb_pred_scale: int = 1
+    rgb_pred_sampling: str = "box"
 
     @property
     def has_rgb(self) -> bool:
@@ -177,6 +190,8 @@ def make_residual_data(
     timestamps=None,
     depth_intrinsics=None,
     world_from_camera=None,
+    rgb_pred_hi=None,
+    rgb_pred_sampling: str = "box",
 ) -> ResidualData:
     """Check shapes and build ``ResidualData`` from sRGB images and depth maps.
 
@@ -192,6 +207,9 @@ def make_residual_data(
         timestamps: ``[T]`` seconds.
         depth_intrinsics: ``[T, 4]`` or ``[4]`` (fx, fy, cx, cy) pixels of the depth map.
         world_from_camera: ``[T, 4, 4]`` the recorded poses the prediction was rendered at.
+        rgb_pred_hi: optional ``[T, sH, sW, 3]`` sRGB, the prediction rendered ``s`` times denser
+            (integer ``s >= 2``; see ``ResidualData.rgb_pred_hi`` for where its samples lie).
+        rgb_pred_sampling: ``"box"`` or ``"point"`` (odd ``s``), see ``ResidualData``.
     """
     kw: dict = {"depth_sigma": (float(depth_sigma[0]), float(depth_sigma[1])), "track_noise_m": float(track_noise_m)}
     if rgb_pred is not None or rgb_meas is not None:
@@ -213,6 +231,22 @@ def make_residual_data(
         if k.shape != (p.shape[0], 4):
             raise InputError(f"make_residual_data: rgb_intrinsics has shape {k.shape}; expected [{p.shape[0]}, 4].")
         kw.update(rgb_pred=p, rgb_meas=m, rgb_valid=valid, rgb_intrinsics=k)
+        if rgb_pred_hi is not None:
+            hi = srgb_to_linear(rgb_pred_hi)
+            scale = hi.shape[1] // p.shape[1] if hi.ndim == 4 else 0
+            if scale < 2 or hi.shape != (p.shape[0], scale * p.shape[1], scale * p.shape[2], 3):
+                raise InputError(
+                    f"make_residual_data: rgb_pred_hi has shape {hi.shape}; expected [T, sH, sW, 3] with an "
+                    f"integer s >= 2 for rgb_pred {p.shape}: render the prediction at s times the RGB resolution."
+                )
+            if rgb_pred_sampling not in ("box", "point") or (rgb_pred_sampling == "point" and scale % 2 == 0):
+                raise InputError(
+                    f"make_residual_data: rgb_pred_sampling is {rgb_pred_sampling!r} with rgb_pred_hi at {scale}x; "
+                    "use 'box', or 'point' with an odd scale (its centre sub-pixel is the pixel centre)."
+                )
+            kw.update(rgb_pred_hi=hi, rgb_pred_scale=int(scale), rgb_pred_sampling=rgb_pred_sampling)
+    elif rgb_pred_hi is not None:
+        raise InputError("make_residual_data: rgb_pred_hi needs rgb_pred and rgb_meas.")
     if depth_pred is not None or depth_meas is not None:
         if depth_pred is None or depth_meas is None:
             raise InputError("make_residual_data: give both depth_pred and depth_meas, or neither.")

@@ -68,6 +68,7 @@ def synthetic_residual_data(
     track_noise_m: float = 0.002,
     depth_sigma: tuple[float, float] = (0.001, 0.002),
     seed: int = 0,
+    dense_prediction: bool = False,
 ) -> ResidualData:
     """Static-recording RGB and depth against ground-truth renders, and (when ``part`` is given and
     the scene has parts) part ``part``'s tracks in the dynamic recording against a simple-joint fit.
@@ -82,6 +83,11 @@ def synthetic_residual_data(
         track_noise_m: per-coordinate noise added to the true track positions, metres.
         depth_sigma: the depth-noise model the twin assumes (the sensor's nominal one).
         seed: seeds the track sampling and noise.
+        dense_prediction: also render the prediction denser (``rgb_pred_hi``, which the
+            displacement effects resample), one ray per sub-pixel centre, so that reducing it
+            reproduces how the recording samples a pixel: ``s = rgb_supersample`` and the mean
+            (``"box"``) for an anti-aliased recording, ``s = 3`` and the centre sub-pixel
+            (``"point"``) for a point-sampled one.
     """
     cap, truth = scene.static, scene.truth
     h, w = cap.rgb.shape[1:3]
@@ -93,6 +99,18 @@ def synthetic_residual_data(
         pose = cap.world_from_camera[t]
         rgb.append(render_state(scene, pose, cap.rgb_intrinsics[t], w, h, q=q0)[0])
         depth.append(render_state(scene, pose, cap.depth_intrinsics[t], dw, dh, q=q0)[1])
+    hi, sampling = None, "box"
+    if dense_prediction:
+        s = scene.spec.rgb_supersample if scene.spec.rgb_supersample > 1 else 3
+        sampling = "box" if scene.spec.rgb_supersample > 1 else "point"
+        spec_hi = replace(scene.spec, rgb_supersample=1)
+        hi = []
+        for t in range(cap.num_frames):
+            fx, fy, cx, cy = cap.rgb_intrinsics[t]
+            # Sub-pixel i of an axis lies at pixel (i + 0.5) / s - 0.5.
+            k_hi = (s * fx, s * fy, s * cx + (s - 1) / 2, s * cy + (s - 1) / 2)
+            hi.append(render_state(spec_hi, cap.world_from_camera[t], k_hi, s * w, s * h, q=q0)[0])
+        hi = np.stack(hi)
     kw = {}
     if part is not None and truth.joints:
         obs, valid = synthetic_tracks(scene, part, n_points, track_noise_m, seed)
@@ -111,7 +129,7 @@ def synthetic_residual_data(
         rgb_pred=np.stack(rgb), rgb_meas=cap.rgb, rgb_intrinsics=cap.rgb_intrinsics,
         depth_pred=np.stack(depth), depth_meas=cap.depth, depth_confidence=cap.confidence,
         depth_sigma=depth_sigma, timestamps=cap.timestamps, depth_intrinsics=cap.depth_intrinsics,
-        world_from_camera=cap.world_from_camera, **kw,
+        world_from_camera=cap.world_from_camera, rgb_pred_hi=hi, rgb_pred_sampling=sampling, **kw,
     )
 
 
