@@ -17,6 +17,7 @@ be studied offline without re-running registration, masks and tracking.
 from __future__ import annotations
 
 import argparse
+import pickle
 import sys
 import time
 from pathlib import Path
@@ -29,10 +30,17 @@ sys.path.insert(0, str(Path(__file__).resolve().parent))
 from _common import print_table, write_results  # noqa: E402
 
 from artitwin_core.change import PartConfig, build_canonical_tsdf, segment_parts  # noqa: E402
-from artitwin_core.joints import JointFitConfig, estimate_joint, joint_errors  # noqa: E402
+from artitwin_core.joints import (  # noqa: E402
+    JointFitConfig,
+    StateRefineConfig,
+    estimate_joint,
+    joint_errors,
+    refine_joint_states,
+)
+from artitwin_core.masks import MaskSequence  # noqa: E402
 from artitwin_core.registration import RegistrationConfig, register_recordings  # noqa: E402
 from artitwin_core.synth import BENCHMARK_SCENES, generate_scene  # noqa: E402
-from artitwin_core.tracking import TrackingConfig, track_part_points  # noqa: E402
+from artitwin_core.tracking import TrackingConfig, Trajectories, track_part_points  # noqa: E402
 
 DEFAULT_SCENES = [
     "tiny",
@@ -61,36 +69,72 @@ def _track_error_mm(traj, part_world_from_closed: np.ndarray) -> float:
     return 1e3 * float(np.median(np.concatenate(errs))) if errs else float("nan")
 
 
-def bench_scene(name: str, save_tracks: Path | None = None) -> list[dict]:
-    scene = generate_scene(BENCHMARK_SCENES[name])
+def _pipeline_upstream(name: str, scene) -> dict:
+    """Registration, part masks and each part label's 3D tracks, as the pipeline makes them."""
     s, d, truth = scene.static, scene.dynamic, scene.truth
     t0 = time.perf_counter()
     reg = register_recordings(s, d, gravity=GRAVITY, config=RegistrationConfig())
     canonical = build_canonical_tsdf(s, world_from_camera=truth.static_world_from_camera)
     seg = segment_parts(d, reg.canonical_from_session, canonical, gravity=GRAVITY, config=PartConfig())
     t_masks = time.perf_counter() - t0
+    return {
+        "canonical_from_session": reg.canonical_from_session,
+        "masks": seg.masks,
+        "register_masks_s": t_masks,
+        "tracks": {},
+    }
+
+
+def _cached_upstream(name: str, cache: Path) -> dict:
+    """The same upstream results read from ``cache/<scene>.pkl`` (keys of /tmp/cache_pj/make_cache.py)."""
+    with open(cache / f"{name}.pkl", "rb") as f:
+        c = pickle.load(f)
+    tracks = {
+        int(lab): Trajectories(
+            points_in_world=tr["points_in_world"],
+            pixels=tr["pixels"],
+            valid=tr["valid"],
+            query_frame=int(tr["query_frame"]),
+        )
+        for lab, tr in c["tracks"].items()
+    }
+    return {
+        "canonical_from_session": c["canonical_from_session"],
+        "masks": MaskSequence(part=c["part"], hand=c["hand"], score=c["score"]),
+        "register_masks_s": float("nan"),
+        "tracks": tracks,
+    }
+
+
+def bench_scene(name: str, save_tracks: Path | None = None, cache: Path | None = None) -> list[dict]:
+    scene = generate_scene(BENCHMARK_SCENES[name])
+    d, truth = scene.dynamic, scene.truth
+    up = _cached_upstream(name, cache) if cache is not None else _pipeline_upstream(name, scene)
+    masks = up["masks"]
     rows = []
-    labels = [int(v) for v in np.unique(seg.masks.part) if v > 0]
+    labels = [int(v) for v in np.unique(masks.part) if v > 0]
     for k, joint_true in enumerate(truth.joints):
         row = {
             "scene": name,
             "part": k,
             "joint_true": joint_true.joint_type,
             "frames": d.num_frames,
-            "register_masks_s": t_masks,
+            "register_masks_s": up["register_masks_s"],
         }
         true_mask = truth.part_masks == k + 1
-        overlap = [np.logical_and(seg.masks.part == lab, true_mask).sum() for lab in labels]
+        overlap = [np.logical_and(masks.part == lab, true_mask).sum() for lab in labels]
         if not labels or max(overlap) == 0:
             row["joint_est"] = "no part mask"
             rows.append(row)
             continue
         label = labels[int(np.argmax(overlap))]
         t0 = time.perf_counter()
-        traj = track_part_points(
-            d, seg.masks, reg.canonical_from_session, part_label=label, config=TrackingConfig()
-        )
-        row["track_s"] = time.perf_counter() - t0
+        traj = up["tracks"].get(label)
+        if traj is None:
+            traj = track_part_points(
+                d, masks, up["canonical_from_session"], part_label=label, config=TrackingConfig()
+            )
+            row["track_s"] = time.perf_counter() - t0
         if save_tracks is not None:
             save_tracks.mkdir(parents=True, exist_ok=True)
             np.savez_compressed(
@@ -122,11 +166,15 @@ def bench_scene(name: str, save_tracks: Path | None = None) -> list[dict]:
             rows.append(row)
             continue
         row["fit_s"] = time.perf_counter() - t0
-        j = fit.joint
+        t0 = time.perf_counter()
+        j = refine_joint_states(fit.joint, d, masks, label, up["canonical_from_session"], StateRefineConfig())
+        row["refine_s"] = time.perf_counter() - t0
         e = joint_errors(j, joint_true)
         rotational = joint_true.joint_type in ("revolute", "screw")
         scale = np.degrees(1.0) if rotational else 1e3
-        q_err = (j.q - (joint_true.q - joint_true.q[ref])) * scale
+        q_rel = joint_true.q - joint_true.q[ref]
+        q_err = (j.q - q_rel) * scale
+        q_err_tracks = (fit.joint.q - q_rel) * scale
         true_range = float(q_abs.max()) * scale
         est_range = float(j.q_range[1] - j.q_range[0]) * scale
         row.update(
@@ -135,9 +183,12 @@ def bench_scene(name: str, save_tracks: Path | None = None) -> list[dict]:
             axis_deg=e.axis_angle_deg,
             pivot_mm=1e3 * e.pivot_to_line_m if rotational else float("nan"),
             range_true=true_range,
+            range_tracks=float(fit.joint.q_range[1] - fit.joint.q_range[0]) * scale,
             range_est=est_range,
             range_err=est_range - true_range,
+            state_rmse_tracks=float(np.sqrt(np.nanmean(q_err_tracks**2))),
             state_rmse=float(np.sqrt(np.nanmean(q_err**2))),
+            state_max_err=float(np.nanmax(np.abs(q_err))),
             unit="deg" if rotational else "mm",
         )
         rows.append(row)
@@ -153,11 +204,17 @@ def main() -> None:
         default=None,
         help="folder to save each part's trajectories and true motion (.npz) for offline fits",
     )
+    parser.add_argument(
+        "--cache",
+        type=Path,
+        default=None,
+        help="folder of <scene>.pkl upstream results (registration, masks, tracks) to fit from",
+    )
     args = parser.parse_args()
     cv2.setNumThreads(2)
     rows = []
     for name in args.scenes:
-        rows.extend(bench_scene(name, args.save_tracks))
+        rows.extend(bench_scene(name, args.save_tracks, args.cache))
         print(f"{name}: done", flush=True)
     columns = [
         "scene",
@@ -168,9 +225,12 @@ def main() -> None:
         "axis_deg",
         "pivot_mm",
         "range_true",
+        "range_tracks",
         "range_est",
         "range_err",
+        "state_rmse_tracks",
         "state_rmse",
+        "state_max_err",
         "unit",
         "q_reached",
         "tracks",
@@ -178,13 +238,21 @@ def main() -> None:
         "register_masks_s",
         "track_s",
         "fit_s",
+        "refine_s",
     ]
     print(
-        "\nPipeline: register_recordings -> segment_parts -> track_part_points -> estimate_joint (ref frame 0)"
+        "\nPipeline: register_recordings -> segment_parts -> track_part_points -> estimate_joint (ref frame 0) -> refine_joint_states"
     )
     print_table(rows, columns)
     path = write_results(
-        "pipeline_joints", rows, {"tracking": repr(TrackingConfig()), "joints": repr(JointFitConfig())}
+        "pipeline_joints",
+        rows,
+        {
+            "tracking": repr(TrackingConfig()),
+            "joints": repr(JointFitConfig()),
+            "states": repr(StateRefineConfig()),
+            "cache": str(args.cache) if args.cache else None,
+        },
     )
     print(f"\nwrote {path}")
 

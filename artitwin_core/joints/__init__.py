@@ -1,4 +1,4 @@
-"""Joints: types, estimation from 3D trajectories, metrics against ground truth."""
+"""Joints: types, estimation from 3D trajectories, state refinement from depth, metrics against ground truth."""
 
 from artitwin_core.joints._estimate import HypothesisScore, JointFit, JointFitConfig, estimate_joint
 from artitwin_core.joints._metrics import (
@@ -10,6 +10,7 @@ from artitwin_core.joints._metrics import (
 )
 from artitwin_core.joints._model import joint_transforms
 from artitwin_core.joints._simulate import random_part_joint, simulate_trajectories
+from artitwin_core.joints._states import StateRefineConfig, refine_joint_states
 from artitwin_core.joints._types import JOINT_TYPES, Joint
 
 __all__ = [
@@ -19,6 +20,7 @@ __all__ = [
     "JointErrors",
     "JointFit",
     "JointFitConfig",
+    "StateRefineConfig",
     "axis_angle_error_deg",
     "estimate_joint",
     "joint_errors",
@@ -26,5 +28,6 @@ __all__ = [
     "line_distance",
     "point_line_distance",
     "random_part_joint",
+    "refine_joint_states",
     "simulate_trajectories",
 ]

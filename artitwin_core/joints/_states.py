@@ -1,0 +1,400 @@
+"""Refining a rotational joint's per-frame state from depth, with its axis and pivot held fixed.
+
+Point tracks end when a door's front face turns out of view, and ``estimate_joint`` then holds
+``q``: the fitted opening saturates short of the true one. The part's pixels still carry depth
+after that (the door's edge, then its inside face), so each frame's ``q`` is fitted here as a
+1-DoF pose of a surface model of the part:
+
+1. Lift the part's mask pixels (eroded, hand excluded) to the canonical frame with the frame's
+   depth, as ``artitwin_core.tracking`` lifts track pixels.
+2. Seed a closed-state (``q = 0``) point model with the frames whose tracked ``q`` is confident:
+   undo the joint motion at ``q[t]``, merge on a voxel grid, estimate normals by local PCA.
+3. For each frame, score ``q`` on a coarse grid then a fine one: move the frame's points back to
+   the closed state at ``q``, take the point-to-plane distance to the nearest model point and
+   subtract a free offset (the robust median): a door seen from behind is a slab whose inside
+   face lies one thickness behind the front face; without the offset that thickness would bias
+   the angle by about ``thickness * mean(s) / mean(s^2)`` (~3 deg). A truncated quadratic
+   loss counts points farther than ``gate_m`` from the model as outliers.
+4. Frames fitted confidently add their points to the model, so later frames match the edge
+   and the inside face that the early frames never showed.
+
+A frame keeps its tracked ``q`` where that is confident and the depth fit agrees with it; the
+depth fit replaces it where the tracks are absent or unsure; frames without enough mask depth
+keep their value. Prismatic and fixed joints are returned unchanged: a drawer front's normal is
+the joint axis, which the free offset would absorb.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, replace
+
+import cv2
+import numpy as np
+from scipy.interpolate import PchipInterpolator
+from scipy.spatial import cKDTree
+
+from artitwin_core._errors import InputError
+from artitwin_core.capture import Capture
+from artitwin_core.joints._model import joint_motion
+from artitwin_core.joints._types import Joint
+from artitwin_core.masks import MaskSequence
+from artitwin_core.tracking._lift import lift_pixels
+
+
+@dataclass(frozen=True)
+class StateRefineConfig:
+    """Hyperparameters of :func:`refine_joint_states`.
+
+    Attributes:
+        max_points: mask pixels lifted per frame at most (an even subsample).
+        min_points: frames with fewer lifted points keep their input ``q``.
+        mask_erode_px: the part mask is eroded by this many RGB pixels (mixed depth at borders).
+        hand_dilate_px: the hand mask is grown by this many pixels before it is excluded.
+        edge_rel: depth neighbours may spread by this fraction of the depth (the tracker's 0.05
+            rejects a surface seen at 65+ deg from its normal, which is how a door's inside
+            face is often seen; the silhouette's mixed pixels spread far more).
+        min_depth_confidence: ARKit depth confidence each depth neighbour needs (0-2).
+        voxel_m: the closed-state model keeps one point per voxel of this size, metres.
+        normal_neighbours: points used for each model normal (local PCA).
+        gate_m: a frame point farther than this from every model point is an outlier, metres.
+        robust_scale_m: point-to-plane residual at which the truncated quadratic loss saturates.
+        seed_confidence: tracked ``q`` with at least this confidence seeds the model.
+        coarse_step_rad: step of the first grid over ``q``.
+        search_below_rad, search_above_rad: the grid spans the seeds' range widened by these.
+        fine_step_rad: step of the second grid around the coarse minimum.
+        agree_rad: a confident tracked ``q`` within this of the depth fit is kept as it is.
+        q_tolerance_rad: depth-fit standard error at which its confidence is 0.5.
+        min_inlier_fraction: depth fits with fewer inliers get no confidence.
+        grow_confidence: depth fits at least this confident add their points to the model.
+        grow: whether depth-fitted frames add their points to the model at all.
+    """
+
+    max_points: int = 1500
+    min_points: int = 60
+    mask_erode_px: int = 2
+    hand_dilate_px: int = 3
+    edge_rel: float = 0.25
+    min_depth_confidence: int = 1
+    voxel_m: float = 0.008
+    normal_neighbours: int = 12
+    gate_m: float = 0.04
+    robust_scale_m: float = 0.012
+    seed_confidence: float = 0.3
+    coarse_step_rad: float = float(np.radians(1.5))
+    search_below_rad: float = float(np.radians(20.0))
+    search_above_rad: float = float(np.radians(100.0))
+    fine_step_rad: float = float(np.radians(0.1))
+    agree_rad: float = float(np.radians(1.5))
+    q_tolerance_rad: float = float(np.radians(1.0))
+    min_inlier_fraction: float = 0.4
+    grow_confidence: float = 0.5
+    grow: bool = False
+
+
+@dataclass
+class _Model:
+    points: np.ndarray  # [M, 3] closed-state points
+    normals: np.ndarray  # [M, 3]
+    tree: cKDTree
+
+
+def _validate(joint: Joint, capture: Capture, masks: MaskSequence, part_label: int, c_from_s) -> np.ndarray:
+    t_count = capture.num_frames
+    part = np.asarray(masks.part)
+    hand = np.asarray(masks.hand)
+    rgb_shape = tuple(capture.rgb.shape[:3])
+    if part.shape != rgb_shape:
+        raise InputError(
+            f"masks.part has shape {part.shape} but the capture's RGB frames are {rgb_shape} [T, H, W]; "
+            "pass the part masks made for this dynamic recording."
+        )
+    if hand.shape != rgb_shape:
+        raise InputError(
+            f"masks.hand has shape {hand.shape} but the capture's RGB frames are {rgb_shape} [T, H, W]; "
+            "pass the hand masks made for this dynamic recording."
+        )
+    q = np.asarray(joint.q)
+    if q.shape != (t_count,):
+        raise InputError(
+            f"joint.q has shape {q.shape} but the capture has {t_count} frames; "
+            "pass the joint fitted to this recording's tracks."
+        )
+    if not np.any(part == part_label):
+        raise InputError(
+            f"part_label {part_label} does not occur in masks.part (labels present: "
+            f"{[int(v) for v in np.unique(part) if v > 0]}); pass the label the joint was fitted to."
+        )
+    c = np.asarray(c_from_s, dtype=np.float64)
+    if c.shape != (4, 4) or not np.all(np.isfinite(c)):
+        raise InputError(
+            f"canonical_from_session must be a finite [4, 4] transform, got shape {c.shape}; "
+            "pass the registration's canonical_from_session."
+        )
+    return c
+
+
+def _lift_frame(capture: Capture, masks: MaskSequence, t: int, label: int, c_from_s, cfg) -> np.ndarray:
+    """``[N, 3]`` canonical points of frame ``t``'s part pixels (eroded, hand excluded)."""
+    m = (masks.part[t] == label).astype(np.uint8)
+    if cfg.mask_erode_px > 0:
+        k = 2 * cfg.mask_erode_px + 1
+        m = cv2.erode(m, np.ones((k, k), np.uint8))
+    hand = np.asarray(masks.hand[t]).astype(np.uint8)
+    if cfg.hand_dilate_px > 0 and hand.any():
+        k = 2 * cfg.hand_dilate_px + 1
+        hand = cv2.dilate(hand, np.ones((k, k), np.uint8))
+    v, u = np.nonzero(m.astype(bool) & ~hand.astype(bool))
+    if u.size > cfg.max_points:
+        idx = np.linspace(0, u.size - 1, cfg.max_points).astype(np.int64)
+        u, v = u[idx], v[idx]
+    if u.size == 0:
+        return np.zeros((0, 3))
+    pose = c_from_s @ np.asarray(capture.world_from_camera[t], dtype=np.float64)
+    pts, ok = lift_pixels(
+        np.stack([u, v], -1).astype(np.float64),
+        np.asarray(capture.depth[t]),
+        None if capture.confidence is None else np.asarray(capture.confidence[t]),
+        np.asarray(capture.rgb_intrinsics[t]),
+        np.asarray(capture.depth_intrinsics[t]),
+        pose,
+        capture.distortion,
+        edge_rel=cfg.edge_rel,
+        min_confidence=cfg.min_depth_confidence,
+    )
+    return pts[ok]
+
+
+def _to_closed(joint: Joint, pts: np.ndarray, q: np.ndarray) -> np.ndarray:
+    """Closed-state positions ``[Q, N, 3]`` of frame points ``[N, 3]`` under states ``q [Q]``."""
+    rot, trans = joint_motion(joint.joint_type, joint.axis, joint.pivot, q, joint.pitch)
+    # x = R c + t  =>  c = R^T (x - t)
+    return np.einsum("qji,qnj->qni", rot, pts[None] - trans[:, None, :])
+
+
+def _build_model(points: np.ndarray, views: np.ndarray, cfg: StateRefineConfig) -> _Model | None:
+    """Voxel-merged closed-state model with normals turned towards the cameras that saw it.
+
+    ``points [N, 3]`` closed-state metres; ``views [N, 3]`` unit directions from each point
+    towards its camera, in the same frame. PCA normals have no sign; without a consistent one
+    the point-to-plane residuals of one surface split into two modes of opposite sign.
+    """
+    if points.shape[0] < cfg.normal_neighbours:
+        return None
+    keys = np.floor(points / cfg.voxel_m).astype(np.int64)
+    _, inv, counts = np.unique(keys, axis=0, return_inverse=True, return_counts=True)
+    inv = inv.reshape(-1)
+    merged = np.zeros((counts.size, 3))
+    np.add.at(merged, inv, points)
+    merged /= counts[:, None]
+    view = np.zeros((counts.size, 3))
+    np.add.at(view, inv, views)
+    if merged.shape[0] < cfg.normal_neighbours:
+        return None
+    tree = cKDTree(merged)
+    _, nn = tree.query(merged, k=cfg.normal_neighbours)
+    nb = merged[nn] - merged[nn].mean(1, keepdims=True)
+    cov = np.einsum("mki,mkj->mij", nb, nb)
+    _, vecs = np.linalg.eigh(cov)
+    normals = vecs[:, :, 0]
+    normals *= np.where(np.sum(normals * view, axis=1) < 0, -1.0, 1.0)[:, None]
+    return _Model(merged, normals, tree)
+
+
+def _frame_cost(model: _Model, closed: np.ndarray, cam: np.ndarray, cfg: StateRefineConfig):
+    """Truncated point-to-plane cost per hypothesis of ``closed [Q, N, 3]`` seen from ``cam [Q, 3]``.
+
+    A frame point whose nearest model point was seen from the same side of the surface (the
+    view directions agree with the model normal) and one seen from the other side (a door's
+    inside face against its front face) each get their own free offset along the normal.
+
+    Returns cost ``[Q]`` (in units of ``robust_scale_m^2``), inlier counts ``[Q]`` and the RMS of
+    inlier residuals ``[Q]`` metres.
+    """
+    q_count, n = closed.shape[:2]
+    dist, idx = model.tree.query(closed.reshape(-1, 3), k=1, distance_upper_bound=cfg.gate_m)
+    dist = dist.reshape(q_count, n)
+    near = np.isfinite(dist)
+    idx = np.where(near.reshape(-1), idx, 0).reshape(q_count, n)
+    nrm = model.normals[idx]
+    r = np.einsum("qni,qni->qn", closed - model.points[idx], nrm)
+    same = np.einsum("qni,qni->qn", cam[:, None, :] - closed, nrm) > 0
+    dev = np.zeros((q_count, n))
+    for group in (same, ~same):
+        sel = near & group
+        rows = sel.any(1)
+        off = np.zeros(q_count)
+        if rows.any():
+            off[rows] = np.nanmedian(np.where(sel[rows], r[rows], np.nan), axis=1)
+        dev = np.where(sel, r - off[:, None], dev)
+    z2 = np.where(near, np.minimum((dev / cfg.robust_scale_m) ** 2, 1.0), 1.0)
+    inl = near & (z2 < 1.0)
+    cost = z2.sum(1)
+    rms = np.sqrt(np.where(inl, dev**2, 0.0).sum(1) / np.maximum(inl.sum(1), 1))
+    return cost, inl.sum(1), rms
+
+
+def _fit_frame(
+    joint: Joint,
+    model: _Model,
+    pts: np.ndarray,
+    cam: np.ndarray,
+    lo: float,
+    hi: float,
+    cfg: StateRefineConfig,
+):
+    """Best ``q`` of one frame (points ``[N, 3]``, camera centre ``[3]``), its standard error,
+    inlier fraction and RMS residual."""
+
+    def cost_at(qs):
+        return _frame_cost(model, _to_closed(joint, pts, qs), _to_closed(joint, cam[None], qs)[:, 0], cfg)
+
+    grid = np.arange(lo, hi + 0.5 * cfg.coarse_step_rad, cfg.coarse_step_rad)
+    cost, _, _ = cost_at(grid)
+    q0 = grid[int(np.argmin(cost))]
+    fine = q0 + np.arange(-cfg.coarse_step_rad * 1.5, cfg.coarse_step_rad * 1.5 + 1e-12, cfg.fine_step_rad)
+    cost, n_in, rms = cost_at(fine)
+    k = int(np.argmin(cost))
+    q_best = fine[k]
+    # Curvature of the cost about its minimum: a parabola through the fine grid's +-3 steps
+    # (wider than one step: nearest-neighbour costs are piecewise and locally jagged).
+    lo_k, hi_k = max(0, k - 3), min(fine.size, k + 4)
+    curv = 0.0
+    if hi_k - lo_k >= 3:
+        coef = np.polyfit(fine[lo_k:hi_k] - q_best, cost[lo_k:hi_k], 2)
+        curv = float(coef[0])
+        if curv > 0 and abs(coef[1] / (2 * curv)) < cfg.fine_step_rad:
+            q_best = q_best - coef[1] / (2 * curv)
+    frac = float(n_in[k]) / max(pts.shape[0], 1)
+    # cost = sum (r / s)^2 over inliers  =>  d2cost/dq2 = 2 sum (dr/dq)^2 / s^2, and the
+    # standard error of q is sigma / sqrt(sum (dr/dq)^2), sigma = RMS inlier residual. Neighbouring
+    # depth pixels are correlated (bilinear, smoothed sensor): count one in 16 as independent.
+    if curv > 0 and n_in[k] > 0:
+        info = 2.0 * curv * cfg.robust_scale_m**2 / 2.0
+        se = float(rms[k]) / np.sqrt(info / 16.0)
+    else:
+        se = np.inf
+    return float(q_best), se, frac, float(rms[k])
+
+
+def refine_joint_states(
+    joint: Joint,
+    capture: Capture,
+    masks: MaskSequence,
+    part_label: int,
+    canonical_from_session: np.ndarray,
+    config: StateRefineConfig | None = None,
+) -> Joint:
+    """Refit each frame's ``q`` of a rotational joint against the part's depth (axis and pivot fixed).
+
+    Args:
+        joint: the fitted joint (``estimate_joint``'s), canonical frame, ``q [T]``.
+        capture: the dynamic recording the joint was fitted to (depth, intrinsics, session poses).
+        masks: its part and hand masks ``[T, H, W]`` at RGB resolution.
+        part_label: the label in ``masks.part`` of the part the joint moves.
+        canonical_from_session: ``[4, 4]`` registration of the recording's session frame into the
+            canonical frame (points in the canonical frame are ``canonical_from_session @
+            world_from_camera[t]`` applied to camera points).
+        config: hyperparameters; ``StateRefineConfig()`` when None.
+
+    Returns:
+        A ``Joint`` with the same type, axis, pivot and pitch. Revolute and screw joints get a
+        refined ``q``, ``q_range`` and ``confidence``; on frames whose ``q`` came from the depth
+        fit, ``residual`` is its RMS point-to-surface distance (metres) instead of the tracks'.
+        Prismatic and fixed joints come back unchanged.
+
+    Raises:
+        InputError: masks that do not match the capture, ``q`` of another length, a label that
+            is not in the masks, or a malformed ``canonical_from_session``.
+    """
+    cfg = config if config is not None else StateRefineConfig()
+    c_from_s = _validate(joint, capture, masks, part_label, canonical_from_session)
+    if joint.joint_type not in ("revolute", "screw"):
+        return joint
+    t_count = capture.num_frames
+    q_in = np.asarray(joint.q, dtype=np.float64)
+    conf_in = np.nan_to_num(np.asarray(joint.confidence, dtype=np.float64))
+    pts = [_lift_frame(capture, masks, t, part_label, c_from_s, cfg) for t in range(t_count)]
+    cams = (c_from_s @ np.asarray(capture.world_from_camera, dtype=np.float64))[:, :3, 3]
+    has_depth = np.array([p.shape[0] >= cfg.min_points for p in pts])
+    seeds = np.nonzero(has_depth & np.isfinite(q_in) & (conf_in >= cfg.seed_confidence))[0]
+    if seeds.size == 0:
+        return joint
+    closed: dict[int, tuple[np.ndarray, np.ndarray]] = {}
+
+    def add_frame(t: int, q: float) -> None:
+        pts_closed = _to_closed(joint, pts[t], np.array([q]))[0]
+        cam = _to_closed(joint, cams[t][None], np.array([q]))[0, 0]
+        view = cam - pts_closed
+        closed[t] = (pts_closed, view / np.linalg.norm(view, axis=1, keepdims=True))
+
+    def model_of(frames) -> _Model | None:
+        if not frames:
+            return None
+        return _build_model(
+            np.concatenate([closed[f][0] for f in frames]),
+            np.concatenate([closed[f][1] for f in frames]),
+            cfg,
+        )
+
+    seed_list = [int(t) for t in seeds]
+    for t in seed_list:
+        add_frame(t, float(q_in[t]))
+    lo = float(np.min(q_in[seeds])) - cfg.search_below_rad
+    hi = float(np.max(q_in[seeds])) + cfg.search_above_rad
+    if joint.joint_type == "revolute":
+        lo, hi = max(lo, -np.pi), min(hi, np.pi)
+
+    q_out = q_in.copy()
+    conf_out = conf_in.copy()
+    res_out = np.asarray(joint.residual, dtype=np.float64).copy()
+
+    def fit_and_decide(t: int, model: _Model) -> bool:
+        """Fit frame ``t``; keep its tracked ``q`` if the depth agrees, else take the more
+        confident of the two. True when the depth fit replaced ``q``."""
+        q_d, se, frac, rms = _fit_frame(joint, model, pts[t], cams[t], lo, hi, cfg)
+        conf_d = 0.0
+        if frac >= cfg.min_inlier_fraction and np.isfinite(se):
+            conf_d = float(min(1.0, frac / 0.8) / (1.0 + (se / cfg.q_tolerance_rad) ** 2))
+        tracked_ok = np.isfinite(q_in[t]) and conf_in[t] >= cfg.seed_confidence
+        if tracked_ok and abs(q_d - q_in[t]) <= cfg.agree_rad:
+            conf_out[t] = max(conf_in[t], conf_d)
+            return False
+        if conf_d > conf_in[t] or not np.isfinite(q_in[t]):
+            q_out[t], conf_out[t], res_out[t] = q_d, conf_d, rms
+            return True
+        return False
+
+    # 1. Each seed against a model of the other seeds: a wrong seed must not vouch for itself.
+    kept = list(seed_list)
+    for t in seed_list:
+        others = model_of([f for f in seed_list if f != t])
+        if others is not None and fit_and_decide(t, others):
+            kept.remove(t)
+    model = model_of(kept)
+    if model is None:
+        return joint
+    # 2. Every other frame with depth against the seeds' model (grown as they are fitted).
+    for t in range(t_count):
+        if not has_depth[t] or t in seeds:
+            continue
+        if fit_and_decide(t, model) and cfg.grow and conf_out[t] >= cfg.grow_confidence:
+            add_frame(t, float(q_out[t]))
+            kept.append(t)
+            model = model_of(kept) or model
+    # Frames the depth could not measure and the tracks were unsure of hold a stale ``q`` (the
+    # tracker's last value): bridge them from the nearest measured frames instead. Their
+    # confidence stays the input's: nothing measured them.
+    measured = np.isfinite(q_out) & (conf_out >= cfg.seed_confidence)
+    stale = ~measured
+    if measured.any() and stale.any():
+        # Monotone cubic through the measured frames: a hand eases a door in and out, so a
+        # straight line between the neighbours of a gap cuts the corner (3 deg on ``tiny``).
+        known = np.nonzero(measured)[0]
+        gaps = np.nonzero(stale)[0]
+        if known.size >= 2:
+            q_out[gaps] = PchipInterpolator(known, q_out[known], extrapolate=False)(gaps)
+        # Before the first and after the last measured frame: hold the nearest measured value.
+        q_out[gaps] = np.where(np.isfinite(q_out[gaps]), q_out[gaps], np.interp(gaps, known, q_out[known]))
+    finite = q_out[np.isfinite(q_out)]
+    q_range = np.array([finite.min(), finite.max()]) if finite.size else np.asarray(joint.q_range)
+    return replace(joint, q=q_out, q_range=q_range, residual=res_out, confidence=conf_out)
