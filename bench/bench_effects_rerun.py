@@ -31,7 +31,7 @@ from schemas import DiagnosisReport, PipelineConfig, StageReport  # noqa: E402
 
 STATIC = "static recording"
 STAGES = ["ingest", "refine_poses", "reconstruct", "reconstruct_report", "register", "part_masks", "track",
-          "fit_joints", "predict_views", "diagnose"]
+          "fit_joints", "joint_states", "predict_views", "diagnose"]
 # injected synthetic effect(s) -> (catalog effect that models it, its target)
 CASES = {
     "exposure": ((("exposure", {}), ("white_balance", {})), "exposure_white_balance", "photometric"),

@@ -51,7 +51,13 @@ def scene_pipeline(scene: str | Path, config: PipelineConfig, ex: Executor) -> d
     )
     # III. tracks and joints
     tracks = h["track"] = ex.submit("track", config.track, {"dynamic": dynamic, "masks": masks, "registration": reg}, "dynamic")
-    joints = h["fit_joints"] = ex.submit("fit_joints", config.fit_joints, {"trajectories": tracks}, "dynamic")
+    fitted = h["fit_joints"] = ex.submit("fit_joints", config.fit_joints, {"trajectories": tracks}, "dynamic")
+    joints = h["joint_states"] = ex.submit(
+        "joint_states",
+        config.joint_states,
+        {"joints": fitted, "dynamic": dynamic, "masks": masks, "registration": reg},
+        "dynamic",
+    )
     # IV. the twin: Gaussians split into background / interior / parts and trained with the parts moved
     twin = h["articulate"] = ex.submit(
         "articulate",
@@ -147,21 +153,21 @@ def build_summary(
             entry["notes"] = list(bundle.notes)
             entry["files"] = bundle.paths
         stages[name] = entry
-    joints = []
-    for run in runs.values():
-        if run.kind == JointSet.kind:
-            for j in store.get(run.key, JointSet).joints:
-                joints.append(
-                    {
-                        "name": j.name,
-                        "type": j.joint_type,
-                        "axis": j.axis.tolist(),
-                        "pivot": j.pivot.tolist(),
-                        "range": j.q_range.tolist(),
-                        "q": [_finite(float(v)) for v in j.q],
-                        "pitch": j.pitch,
-                    }
-                )
+    # The last joint set submitted is the final one (joint_states refines fit_joints' states).
+    joint_runs = [run for run in runs.values() if run.kind == JointSet.kind]
+    joints = [
+        {
+            "name": j.name,
+            "type": j.joint_type,
+            "axis": j.axis.tolist(),
+            "pivot": j.pivot.tolist(),
+            "range": j.q_range.tolist(),
+            "q": [_finite(float(v)) for v in j.q],
+            "pitch": j.pitch,
+        }
+        for run in joint_runs[-1:]
+        for j in store.get(run.key, JointSet).joints
+    ]
     return {
         "summary_version": SUMMARY_VERSION,
         "scene": str(Path(scene).resolve()),

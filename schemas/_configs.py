@@ -75,6 +75,17 @@ class JointConfig(StageConfig):
     )
 
 
+class JointStateConfig(StageConfig):
+    """Refining each rotational joint's per-frame state from depth (see artitwin_core.joints.refine_joint_states)."""
+
+    refine_from_depth: bool = Field(
+        default=True,
+        description="Refit q(t) of revolute and screw joints against the part's depth inside its mask, axis and "
+        "pivot held: the point tracks end when a door's front face turns away, and q would be held from there.",
+    )
+    max_points: int = Field(default=1500, ge=100, description="Part points lifted per frame.")
+
+
 # The stage whose forward model gains each catalog effect when a user enables it
 # (``PipelineConfig.with_effects``). The other catalog effects are diagnosed only.
 EFFECT_STAGES: dict[str, str] = {
@@ -96,6 +107,9 @@ class PipelineConfig(StageConfig):
     part_masks: PartMasksConfig = Field(default_factory=PartMasksConfig, description="Part and hand masks.")
     track: TrackConfig = Field(default_factory=TrackConfig, description="3D point tracks on the parts.")
     fit_joints: JointConfig = Field(default_factory=JointConfig, description="Joint fitting.")
+    joint_states: JointStateConfig = Field(
+        default_factory=JointStateConfig, description="Per-frame joint states refined from depth."
+    )
     articulate: ArticulateConfig = Field(
         default_factory=ArticulateConfig, description="Stage IV: part/interior/background split and articulated training."
     )

@@ -10,7 +10,7 @@ from tasks.articulate import articulate_report, articulate_twin
 from tasks.diagnose import diagnose_dynamic, diagnose_twin, predict_dynamic, predict_views
 from tasks.export import export_twin
 from tasks.ingest import check_capture, ingest_recording
-from tasks.joints import fit_joints
+from tasks.joints import fit_joints, refine_states
 from tasks.reconstruct import reconstruct_canonical, reconstruct_report, refine_capture_poses
 from tasks.register import label_parts, register_dynamic
 from tasks.track import track_parts
@@ -32,6 +32,7 @@ __all__ = [
     "reconstruct_canonical",
     "reconstruct_report",
     "refine_capture_poses",
+    "refine_states",
     "register_dynamic",
     "track_parts",
     "stage",

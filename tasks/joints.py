@@ -4,9 +4,20 @@ from __future__ import annotations
 
 import numpy as np
 
-from artitwin_core.joints import JointFitConfig, estimate_joint
+from artitwin_core.capture import Capture
+from artitwin_core.joints import Joint, JointFitConfig, StateRefineConfig, estimate_joint, refine_joint_states
+from artitwin_core.masks import MaskSequence
 from artitwin_core.tracking import Trajectories
-from schemas import JointConfig, JointParams, JointSet, TrajectoriesArtifact
+from schemas import (
+    CaptureArtifact,
+    JointConfig,
+    JointParams,
+    JointSet,
+    JointStateConfig,
+    MaskSequenceArtifact,
+    Registration,
+    TrajectoriesArtifact,
+)
 from tasks._convert import to_artifact, to_core
 from tasks._stage import stage
 
@@ -44,3 +55,40 @@ def fit_joints(trajectories: TrajectoriesArtifact, config: JointConfig) -> Joint
         selection[name]["noise_sigma_m"] = float(fit.noise_sigma_m)
         selection[name]["inlier_tracks_count"] = float(np.count_nonzero(fit.inlier_mask))
     return JointSet(joints=joints, selection=selection)
+
+
+@stage(name="joint_states", version=1, config=JointStateConfig, output=JointSet)
+def refine_states(
+    joints: JointSet,
+    dynamic: CaptureArtifact,
+    masks: MaskSequenceArtifact,
+    registration: Registration,
+    config: JointStateConfig,
+) -> JointSet:
+    """Each rotational joint's ``q(t)`` refitted against its part's depth, axis and pivot held.
+
+    ``joint_<k>`` moves the part labelled ``k + 1`` in the masks (as ``track_parts`` and
+    ``fit_joints`` number them). ``selection`` gains ``state_frames_changed`` per joint: how many
+    frames' ``q`` the depth fit replaced.
+    """
+    if not config.refine_from_depth:
+        return joints
+    capture = to_core(Capture, dynamic)
+    seq = to_core(MaskSequence, masks)
+    labels = {int(v) for v in np.unique(seq.part) if v > 0}
+    out, selection = [], {name: dict(scores) for name, scores in joints.selection.items()}
+    for params in joints.joints:
+        joint = to_core(Joint, params)
+        label = int(params.name.rsplit("_", 1)[-1]) + 1
+        if label in labels:
+            refined = refine_joint_states(
+                joint, capture, seq, label, registration.canonical_from_session,
+                StateRefineConfig(max_points=config.max_points),
+            )  # fmt: skip
+            changed = int(np.count_nonzero(np.abs(np.asarray(refined.q) - np.asarray(joint.q)) > 1e-9))
+            joint = refined
+        else:
+            changed = 0
+        out.append(to_artifact(JointParams, joint, name=params.name))
+        selection.setdefault(params.name, {})["state_frames_changed"] = float(changed)
+    return JointSet(joints=out, selection=selection)

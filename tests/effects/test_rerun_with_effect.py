@@ -23,7 +23,7 @@ from schemas import DiagnosisReport, PipelineConfig, StageReport
 EFFECT = "exposure_white_balance"
 STATIC = "static recording"
 STAGES = ["ingest", "refine_poses", "reconstruct", "reconstruct_report", "register", "part_masks", "track",
-          "fit_joints", "predict_views", "diagnose"]  # what the diagnosis needs (no stage IV, no export)
+          "fit_joints", "joint_states", "predict_views", "diagnose"]  # what the diagnosis needs (no stage IV, no export)
 
 
 def _run(scene, config, store, out):

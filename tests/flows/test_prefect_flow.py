@@ -68,7 +68,7 @@ def test_scene_flow_writes_summary_and_reruns_from_cache(tmp_path, tiny_scene):
     assert set(summary["stages"]) == {
         "ingest/static", "ingest/dynamic", "capture_check/static", "capture_check/dynamic", "refine_poses",
         "reconstruct", "reconstruct_report", "register", "part_masks", "track", "fit_joints",
-        "articulate", "articulate_report", "predict_views", "diagnose", "predict_dynamic", "diagnose_dynamic",
+        "joint_states", "articulate", "articulate_report", "predict_views", "diagnose", "predict_dynamic", "diagnose_dynamic",
         "export",
     }
     assert all(s["status"] == "computed" for s in summary["stages"].values())
@@ -124,11 +124,11 @@ def _check_dynamic_prediction(store_url: str, summary: dict, scene_dir: Path) ->
     assert pred.rgb.shape == dyn.rgb.shape and pred.depth.shape == dyn.depth.shape
     assert not (pred.coverage & get("part_masks", MaskSequenceArtifact).hand).any()  # the twin has no hand
     truth = generate_scene(BENCHMARK_SCENES["tiny"]).truth
-    q_true, q_fit = truth.joints[0].q, get("fit_joints", JointSet).joints[0].q
+    q_true, q_fit = truth.joints[0].q, get("joint_states", JointSet).joints[0].q
     t = int(np.flatnonzero((q_true > 0.4) & (np.abs(q_fit - q_true) < 0.05))[0])
     part = truth.part_masks[t][::2, ::2] == 1  # RGB -> depth grid (2:1 in the tiny scene)
     twin = to_core(GaussianParams, get("articulate", GaussianCheckpoint))
-    joint = to_core(Joint, get("fit_joints", JointSet).joints[0])
+    joint = to_core(Joint, get("joint_states", JointSet).joints[0])
     pose = get("register", Registration).canonical_from_session @ dyn.world_from_camera[t]
     _, closed, _ = render_twin(twin, [joint], [0.0], pose, dyn.depth_intrinsics[t], dyn.depth.shape[2], dyn.depth.shape[1])
     ok = part & np.isfinite(pred.depth[t]) & (dyn.depth[t] > 0) & (closed > 0)

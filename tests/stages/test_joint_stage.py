@@ -5,7 +5,7 @@ from __future__ import annotations
 import numpy as np
 
 from artitwin_core.joints import joint_errors, random_part_joint, simulate_trajectories
-from schemas import TrajectoriesArtifact
+from schemas import JointParams, TrajectoriesArtifact
 from tasks.joints import JointConfig, fit_joints
 
 
@@ -34,3 +34,39 @@ def test_two_parts_get_their_own_joints():
         # 1 mm noise, 150 tracks, 20 frames: the unit tests of the estimator see < 0.2 deg here
         assert err.axis_angle_deg < 0.5
         assert "bic_revolute" in out.selection[est.name]
+
+
+def test_joint_states_stage_refits_the_held_door_state():
+    """joint_0 is refined against the part labelled 1; refine_from_depth=False passes through."""
+    from dataclasses import replace
+
+    from artitwin_core.synth import BENCHMARK_SCENES, generate_scene
+    from schemas import CaptureArtifact, JointSet, JointStateConfig, MaskSequenceArtifact, Registration
+    from tasks import to_artifact
+    from tasks.joints import refine_states
+
+    scene = generate_scene(BENCHMARK_SCENES["tiny"])
+    truth = scene.truth
+    true = truth.joints[0]
+    cut = np.radians(55.0)
+    held = replace(true, q=np.minimum(true.q, cut), confidence=np.where(true.q < cut, 1.0, 0.0))
+    joints = JointSet(joints=[to_artifact(JointParams, held, name="joint_0")], selection={"joint_0": {"bic_revolute": 1.0}})
+    inputs = dict(
+        joints=joints,
+        dynamic=to_artifact(CaptureArtifact, scene.dynamic),
+        masks=MaskSequenceArtifact(
+            part=truth.part_masks, hand=truth.hand_masks, score=np.ones(len(true.q), np.float32)
+        ),
+        registration=Registration(
+            canonical_from_session=truth.canonical_from_dynamic_session, residual_m=0.0, inlier_fraction=1.0,
+            method="ground truth",
+        ),
+    )
+    out = refine_states(**inputs, config=JointStateConfig())
+    q = out.joints[0].q
+    assert np.degrees(np.abs(held.q - true.q).max()) > 5.0
+    assert np.degrees(np.abs(q - true.q).max()) < 1.0, np.degrees(q - true.q).round(2)
+    assert out.selection["joint_0"]["state_frames_changed"] >= 2
+    assert out.selection["joint_0"]["bic_revolute"] == 1.0
+    same = refine_states(**inputs, config=JointStateConfig(refine_from_depth=False))
+    np.testing.assert_array_equal(same.joints[0].q, held.q)
