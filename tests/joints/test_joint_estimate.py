@@ -346,4 +346,49 @@ def test_tracker_rotation_errors_are_not_a_pitch():
     # ... which is the tilted one: the revolute is both the right type and the better axis.
     assert axis_angle_error_deg(screw.axis, data["axis_true"]) > 3.0  # measured 4.4
     assert fit.joint.joint_type == "revolute", [(h.joint_type, h.bic) for h in fit.hypotheses]
-    assert axis_angle_error_deg(fit.joint.axis, data["axis_true"]) < 2.5  # measured 1.65
+    # The frame-level refit keeps the frames' in-plane turns from steering the axis.
+    assert axis_angle_error_deg(fit.joint.axis, data["axis_true"]) < 1.0  # measured 0.46 (1.65 per point)
+
+
+def _frame_error_scene(seed: int, mode: str) -> tuple[Joint, Trajectories]:
+    """A revolute part whose tracks carry errors shared by each frame, as the tracker's do:
+    "slide": every track of the frames past half the opening moved 6 mm along the hinge (a
+    door's grain); "turn": every opened frame turned about the part's normal through its
+    tracks' centroid by N(0, 20 mrad) (a weakly textured face)."""
+    from scipy.spatial.transform import Rotation
+
+    rng = np.random.default_rng(seed)
+    truth, pts = random_part_joint("revolute", N_TRACKS, N_FRAMES, rng)
+    traj, _ = simulate_trajectories(truth, pts, rng, noise_m=0.001)
+    p = traj.points_in_world.copy()
+    a = truth.axis
+    if mode == "slide":
+        p[np.abs(truth.q) > 0.5 * np.abs(truth.q).max()] += 0.006 * a
+    else:
+        rot = joint_transforms("revolute", a, truth.pivot, truth.q)[:, :3, :3]
+        arm = pts.mean(0) - truth.pivot
+        arm -= (arm @ a) * a
+        normal = np.cross(a, arm / np.linalg.norm(arm))
+        for t in np.nonzero(np.abs(truth.q) > 1e-9)[0]:
+            c = np.nanmean(p[t][traj.valid[t]], 0)
+            turn = Rotation.from_rotvec(rng.normal(0.0, 0.02) * (rot[t] @ normal)).as_matrix()
+            p[t] = (p[t] - c) @ turn.T + c
+    return truth, Trajectories(p, traj.pixels, traj.valid, traj.query_frame)
+
+
+@pytest.mark.parametrize(
+    ("mode", "seed", "plain_min", "refit_max"),
+    # measured per point / frame level: slide 1.37 / 0.06 and 0.81 / 0.02 deg, turn 0.34 / 0.03
+    # and 0.52 / 0.02 deg
+    [("slide", 30, 0.6, 0.2), ("slide", 33, 0.6, 0.2), ("turn", 33, 0.2, 0.1), ("turn", 35, 0.2, 0.1)],
+)
+def test_frame_level_errors_do_not_steer_the_hinge(mode, seed, plain_min, refit_max):
+    """Errors shared by a frame's tracks are one sample per frame, not one per track: the
+    per-point fit tilts the axis to explain them, the frame-level refit weighs each motion
+    component by how much the frames scatter in it."""
+    truth, traj = _frame_error_scene(seed, mode)
+    plain = estimate_joint(traj, JointFitConfig(frame_gls_iterations=0)).joint
+    fit = estimate_joint(traj).joint
+    assert plain.joint_type == fit.joint_type == "revolute"
+    assert axis_angle_error_deg(plain.axis, truth.axis) > plain_min
+    assert axis_angle_error_deg(fit.axis, truth.axis) < refit_max
