@@ -1,8 +1,9 @@
 """Part and hand masks on a synthetic door scene against its exact labels.
 
 Measured on this scene (192x144 RGB, 96x72 depth, default noise, a hand opens the door, true
-registration): median part IoU 0.88 (0.86-0.90 per frame), hand pixels labelled part 5.8 %,
-joint angle at the last frame 1.196 rad (truth 1.2), closed frames within 0.03 rad of closed.
+registration): median part IoU 0.914 (0.86-0.93 per frame), hand pixels labelled part 3.3 %,
+joint angle at the last frame 1.164 rad (truth 1.2), closed frames within 0.01 rad of closed.
+(Before the part's own ICP replaced Open3D's: 0.88, 5.8 %, 1.196 rad, 0.03 rad.)
 The issue 5 targets (IoU >= 0.85, hand-as-part <= 5 %) are for the benchmark scenes at
 256x192; at this lower resolution the bound on hand-as-part is 8 %.
 """
@@ -11,9 +12,12 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
+from scipy.spatial import cKDTree
 
 from artitwin_core import InputError
 from artitwin_core.change import build_canonical_tsdf, propagate_masks_sam2, segment_parts
+from artitwin_core.change._parts import _icp_point_to_plane
+from artitwin_core.geometry import axis_angle_to_matrix, make_se3
 from artitwin_core.masks import MaskSequence
 from artitwin_core.synth import SceneSpec, generate_scene
 
@@ -49,10 +53,10 @@ def test_part_iou_and_hand_separation(door):
         if np.sum(gt[t] == 1) > 30
     ]
     assert len(ious) >= 10
-    assert np.median(ious) >= 0.85  # measured 0.88
-    assert min(ious) >= 0.75  # measured 0.86
+    assert np.median(ious) >= 0.85  # measured 0.914
+    assert min(ious) >= 0.75  # measured 0.860
     hand = scene.truth.hand_masks
-    assert np.sum(hand & (pred > 0)) / np.sum(hand) <= 0.08  # measured 0.058
+    assert np.sum(hand & (pred > 0)) / np.sum(hand) <= 0.08  # measured 0.033
     # The hand is found, too: most true hand pixels are labelled hand.
     assert np.sum(hand & seg.masks.hand) / np.sum(hand) >= 0.6
 
@@ -66,9 +70,29 @@ def test_joint_and_states_follow_the_door(door):
     assert abs(abs(model.axis @ truth.axis) - 1.0) < 0.01  # axis within ~8 degrees
     q_true = truth.q
     q = seg.states[:, 0] * np.sign(model.axis @ truth.axis)
-    assert abs(q[-1] - q_true[-1]) < 0.05  # radians; measured 0.017
+    assert abs(q[-1] - q_true[-1]) < 0.05  # radians; measured 0.036
     closed = q_true == 0
-    assert closed.sum() >= 3 and np.all(np.abs(q[closed]) < 0.06)  # measured <= 0.03
+    assert closed.sum() >= 3 and np.all(np.abs(q[closed]) < 0.06)  # measured <= 0.01
+
+
+def test_part_icp_recovers_a_rigid_motion_and_repeats_exactly():
+    # segment_parts must give the same masks for the same input (tracking reacts to a changed
+    # pixel). Open3D's ICP summed its normal equations in a varying order: 29 distinct transforms
+    # in 30 runs on one dynamic frame of the door+drawer benchmark. The part ICP sums in order.
+    rng = np.random.default_rng(0)
+    # Three faces of a box corner, so no sliding direction is free.
+    u, v = rng.random((2, 1500)) * 0.4
+    face = np.repeat(np.arange(3), 500)
+    zero = np.zeros(1500)
+    pts = np.where(face[:, None] == 0, np.stack([u, v, zero], 1),
+                   np.where(face[:, None] == 1, np.stack([zero, u, v], 1), np.stack([u, zero, v], 1)))
+    normals = np.eye(3)[[2, 0, 1]][face]
+    truth = make_se3(axis_angle_to_matrix(np.array([0.3, 1.0, 0.2]), 0.05), np.array([0.02, -0.015, 0.01]))
+    src = (pts - truth[:3, 3]) @ truth[:3, :3]  # truth maps src onto pts
+    tree = cKDTree(pts)
+    first = _icp_point_to_plane(src, pts, normals, tree, np.eye(4), 0.08)
+    assert np.allclose(first, truth, atol=1e-6)  # the same samples moved: exact (measured 2e-16)
+    assert np.array_equal(_icp_point_to_plane(src, pts, normals, tree, np.eye(4), 0.08), first)
 
 
 def test_sam2_backend_without_checkpoint_is_a_clear_input_error(tmp_path):
