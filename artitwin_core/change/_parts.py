@@ -865,7 +865,7 @@ def _front_fill(
         on_plane[on_plane] = np.all((c2 >= np.percentile(f2, 1, axis=0) - wide)
                                     & (c2 <= np.percentile(f2, 99, axis=0) + wide), axis=1)
     else:
-        on_plane[on_plane] = _behind_outline(centroids[on_plane], front, normal, -reach_m - 0.01)
+        on_plane[on_plane] = _behind_outline(centroids[on_plane], front, normal, -reach_m)
     if not on_plane.any():
         return np.zeros((0, 3))
     corners = mesh.vertices[tris[on_plane]]  # [F, 3, 3]
