@@ -6,22 +6,28 @@ after that (the door's edge, then its inside face), so each frame's ``q`` is fit
 1-DoF pose of a surface model of the part:
 
 1. Lift the part's mask pixels (eroded, hand excluded) to the canonical frame with the frame's
-   depth, as ``artitwin_core.tracking`` lifts track pixels.
-2. Seed a closed-state (``q = 0``) point model with the frames whose tracked ``q`` is confident:
-   undo the joint motion at ``q[t]``, merge on a voxel grid, estimate normals by local PCA.
+   depth, as ``artitwin_core.tracking`` lifts track pixels, with their surface normals.
+2. Build a closed-state (``q = 0``) point model from the frames whose tracked ``q`` is
+   confident: undo the joint motion at ``q[t]``, merge on a voxel grid, PCA normals turned
+   towards the cameras, each point moved onto its neighbours' plane. Each seed is first fitted
+   against the other seeds (leave-one-out) so that a wrong one cannot vouch for itself.
 3. For each frame, score ``q`` on a coarse grid then a fine one: move the frame's points back to
    the closed state at ``q``, take the point-to-plane distance to the nearest model point and
-   subtract a free offset (the robust median): a door seen from behind is a slab whose inside
-   face lies one thickness behind the front face; without the offset that thickness would bias
-   the angle by about ``thickness * mean(s) / mean(s^2)`` (~3 deg). A truncated quadratic
-   loss counts points farther than ``gate_m`` from the model as outliers.
-4. Frames fitted confidently add their points to the model, so later frames match the edge
-   and the inside face that the early frames never showed.
+   subtract a free offset per viewing side (the robust median): a door seen from behind is a
+   slab whose inside face lies one thickness behind the front face; without the offset that
+   thickness would bias the angle by about ``thickness * mean(s) / mean(s^2)`` (~3 deg). A
+   truncated quadratic loss counts points farther than ``gate_m`` from the model, or whose own
+   normal turns more than ``normal_gate_deg`` from their match's (the door's edge face against
+   the front face's border), as outliers.
+4. Optionally (``grow``, off: it spread one frame's error to the next on the benchmark) frames
+   fitted confidently add their points to the model.
 
 A frame keeps its tracked ``q`` where that is confident and the depth fit agrees with it; the
-depth fit replaces it where the tracks are absent or unsure; frames without enough mask depth
-keep their value. Prismatic and fixed joints are returned unchanged: a drawer front's normal is
-the joint axis, which the free offset would absorb.
+depth fit replaces it where the tracks are absent or unsure and the fit is more confident;
+frames that neither measured well (no mask depth, a door mostly out of view) are bridged from
+the measured ones by a monotone cubic, keeping their input confidence. Prismatic and fixed
+joints are returned unchanged: a drawer front's normal is the joint axis, which the free offset
+would absorb.
 """
 
 from __future__ import annotations
@@ -47,7 +53,7 @@ class StateRefineConfig:
 
     Attributes:
         max_points: mask pixels lifted per frame at most (an even subsample).
-        min_points: frames with fewer lifted points keep their input ``q``.
+        min_points: frames with fewer lifted points are not fitted (see ``anchor_confidence``).
         mask_erode_px: the part mask is eroded by this many RGB pixels (mixed depth at borders).
         hand_dilate_px: the hand mask is grown by this many pixels before it is excluded.
         edge_rel: depth neighbours may spread by this fraction of the depth (the tracker's 0.05
@@ -60,13 +66,23 @@ class StateRefineConfig:
         robust_scale_m: point-to-plane residual at which the truncated quadratic loss saturates.
         seed_confidence: tracked ``q`` with at least this confidence seeds the model.
         coarse_step_rad: step of the first grid over ``q``.
+        coarse_points: about this many of a frame's points score the first grid.
         search_below_rad, search_above_rad: the grid spans the seeds' range widened by these.
         fine_step_rad: step of the second grid around the coarse minimum.
         agree_rad: a confident tracked ``q`` within this of the depth fit is kept as it is.
         q_tolerance_rad: depth-fit standard error at which its confidence is 0.5.
         min_inlier_fraction: depth fits with fewer inliers get no confidence.
+        full_inlier_fraction: depth fits with this many inliers or more lose nothing for outliers.
         grow_confidence: depth fits at least this confident add their points to the model.
+        anchor_confidence: a depth fit this confident anchors its frame; weaker fits, like
+            frames without depth whose tracks were unsure, are bridged from the anchors by a
+            monotone cubic (held beyond the first and last anchor).
         grow: whether depth-fitted frames add their points to the model at all.
+        smooth_model: move each model point onto its neighbours' plane.
+        normal_gate_deg: a frame point whose own normal (PCA of ``frame_normal_neighbours`` of
+            the frame's points) is farther than this from its model match's is an outlier
+            (90 turns the gate off).
+        normal_oversample: frame normals are estimated on this many times ``max_points`` pixels.
     """
 
     max_points: int = 1500
@@ -76,19 +92,26 @@ class StateRefineConfig:
     edge_rel: float = 0.25
     min_depth_confidence: int = 1
     voxel_m: float = 0.008
-    normal_neighbours: int = 12
+    normal_neighbours: int = 30
     gate_m: float = 0.04
     robust_scale_m: float = 0.012
     seed_confidence: float = 0.3
     coarse_step_rad: float = float(np.radians(1.5))
+    coarse_points: int = 400
     search_below_rad: float = float(np.radians(20.0))
     search_above_rad: float = float(np.radians(100.0))
     fine_step_rad: float = float(np.radians(0.1))
     agree_rad: float = float(np.radians(1.5))
     q_tolerance_rad: float = float(np.radians(1.0))
     min_inlier_fraction: float = 0.4
+    full_inlier_fraction: float = 0.8
     grow_confidence: float = 0.5
+    anchor_confidence: float = 0.3
     grow: bool = False
+    smooth_model: bool = True
+    normal_gate_deg: float = 20.0
+    frame_normal_neighbours: int = 12
+    normal_oversample: int = 4
 
 
 @dataclass
@@ -133,8 +156,14 @@ def _validate(joint: Joint, capture: Capture, masks: MaskSequence, part_label: i
     return c
 
 
-def _lift_frame(capture: Capture, masks: MaskSequence, t: int, label: int, c_from_s, cfg) -> np.ndarray:
-    """``[N, 3]`` canonical points of frame ``t``'s part pixels (eroded, hand excluded)."""
+def _lift_frame(
+    capture: Capture, masks: MaskSequence, t: int, label: int, c_from_s, cfg
+) -> tuple[np.ndarray, np.ndarray | None]:
+    """Canonical points ``[N, 3]`` of frame ``t``'s part pixels (eroded, hand excluded) and their
+    unsigned surface normals ``[N, 3]`` (None when the normal gate is off).
+
+    Normals come from a denser lift (``normal_oversample`` times the points kept): from the
+    kept subsample alone, a door mostly out of view or cut by a hand gives too few neighbours."""
     m = (masks.part[t] == label).astype(np.uint8)
     if cfg.mask_erode_px > 0:
         k = 2 * cfg.mask_erode_px + 1
@@ -144,11 +173,12 @@ def _lift_frame(capture: Capture, masks: MaskSequence, t: int, label: int, c_fro
         k = 2 * cfg.hand_dilate_px + 1
         hand = cv2.dilate(hand, np.ones((k, k), np.uint8))
     v, u = np.nonzero(m.astype(bool) & ~hand.astype(bool))
-    if u.size > cfg.max_points:
-        idx = np.linspace(0, u.size - 1, cfg.max_points).astype(np.int64)
+    dense = cfg.max_points * (cfg.normal_oversample if cfg.normal_gate_deg < 90.0 else 1)
+    if u.size > dense:
+        idx = np.linspace(0, u.size - 1, dense).astype(np.int64)
         u, v = u[idx], v[idx]
     if u.size == 0:
-        return np.zeros((0, 3))
+        return np.zeros((0, 3)), None
     pose = c_from_s @ np.asarray(capture.world_from_camera[t], dtype=np.float64)
     pts, ok = lift_pixels(
         np.stack([u, v], -1).astype(np.float64),
@@ -161,7 +191,15 @@ def _lift_frame(capture: Capture, masks: MaskSequence, t: int, label: int, c_fro
         edge_rel=cfg.edge_rel,
         min_confidence=cfg.min_depth_confidence,
     )
-    return pts[ok]
+    pts = pts[ok]
+    normals = None
+    if cfg.normal_gate_deg < 90.0 and pts.shape[0] >= 3:
+        normals = _cloud_normals(pts, cfg)
+    if pts.shape[0] > cfg.max_points:
+        keep = np.linspace(0, pts.shape[0] - 1, cfg.max_points).astype(np.int64)
+        pts = pts[keep]
+        normals = None if normals is None else normals[keep]
+    return pts, normals
 
 
 def _to_closed(joint: Joint, pts: np.ndarray, q: np.ndarray) -> np.ndarray:
@@ -169,6 +207,14 @@ def _to_closed(joint: Joint, pts: np.ndarray, q: np.ndarray) -> np.ndarray:
     rot, trans = joint_motion(joint.joint_type, joint.axis, joint.pivot, q, joint.pitch)
     # x = R c + t  =>  c = R^T (x - t)
     return np.einsum("qji,qnj->qni", rot, pts[None] - trans[:, None, :])
+
+
+def _cloud_normals(points: np.ndarray, cfg: StateRefineConfig) -> np.ndarray:
+    """Unsigned PCA normals ``[N, 3]`` of one frame's points ``[N, 3]``."""
+    k = min(cfg.frame_normal_neighbours, points.shape[0])
+    _, nn = cKDTree(points).query(points, k=k)
+    nb = points[nn] - points[nn].mean(1, keepdims=True)
+    return np.linalg.eigh(np.einsum("mki,mkj->mij", nb, nb))[1][:, :, 0]
 
 
 def _build_model(points: np.ndarray, views: np.ndarray, cfg: StateRefineConfig) -> _Model | None:
@@ -192,16 +238,29 @@ def _build_model(points: np.ndarray, views: np.ndarray, cfg: StateRefineConfig) 
         return None
     tree = cKDTree(merged)
     _, nn = tree.query(merged, k=cfg.normal_neighbours)
-    nb = merged[nn] - merged[nn].mean(1, keepdims=True)
+    centroid = merged[nn].mean(1)
+    nb = merged[nn] - centroid[:, None, :]
     cov = np.einsum("mki,mkj->mij", nb, nb)
     _, vecs = np.linalg.eigh(cov)
     normals = vecs[:, :, 0]
     normals *= np.where(np.sum(normals * view, axis=1) < 0, -1.0, 1.0)[:, None]
+    if cfg.smooth_model:
+        # Each point onto its neighbours' plane: depth noise in the model would otherwise bias
+        # which model point is nearest to a frame point, unevenly across the surface.
+        merged = merged - np.sum((merged - centroid) * normals, axis=1, keepdims=True) * normals
+        tree = cKDTree(merged)
     return _Model(merged, normals, tree)
 
 
-def _frame_cost(model: _Model, closed: np.ndarray, cam: np.ndarray, cfg: StateRefineConfig):
+def _frame_cost(
+    model: _Model, closed: np.ndarray, cam: np.ndarray, normals: np.ndarray | None, cfg: StateRefineConfig
+):
     """Truncated point-to-plane cost per hypothesis of ``closed [Q, N, 3]`` seen from ``cam [Q, 3]``.
+
+    ``normals [Q, N, 3]`` (the frame's own surface normals, moved like the points, or None): a
+    point whose surface turns more than ``normal_gate_deg`` from its model match's is an outlier.
+    A door's edge face, seen only once the door is open, matches the front face's border
+    otherwise, at the largest lever arm, and tilts the fit.
 
     A frame point whose nearest model point was seen from the same side of the surface (the
     view directions agree with the model normal) and one seen from the other side (a door's
@@ -216,6 +275,8 @@ def _frame_cost(model: _Model, closed: np.ndarray, cam: np.ndarray, cfg: StateRe
     near = np.isfinite(dist)
     idx = np.where(near.reshape(-1), idx, 0).reshape(q_count, n)
     nrm = model.normals[idx]
+    if normals is not None:
+        near &= np.abs(np.einsum("qni,qni->qn", normals, nrm)) >= np.cos(np.radians(cfg.normal_gate_deg))
     r = np.einsum("qni,qni->qn", closed - model.points[idx], nrm)
     same = np.einsum("qni,qni->qn", cam[:, None, :] - closed, nrm) > 0
     dev = np.zeros((q_count, n))
@@ -237,19 +298,26 @@ def _fit_frame(
     joint: Joint,
     model: _Model,
     pts: np.ndarray,
+    nrm: np.ndarray | None,
     cam: np.ndarray,
     lo: float,
     hi: float,
     cfg: StateRefineConfig,
 ):
-    """Best ``q`` of one frame (points ``[N, 3]``, camera centre ``[3]``), its standard error,
+    """Best ``q`` of one frame (points and normals ``[N, 3]``, camera centre ``[3]``), its standard error,
     inlier fraction and RMS residual."""
 
-    def cost_at(qs):
-        return _frame_cost(model, _to_closed(joint, pts, qs), _to_closed(joint, cam[None], qs)[:, 0], cfg)
+    def cost_at(qs, step=1):
+        p, n = pts[::step], None if nrm is None else nrm[::step]
+        rot = joint_motion(joint.joint_type, joint.axis, joint.pivot, qs, joint.pitch)[0]
+        moved = None if n is None else np.einsum("qji,nj->qni", rot, n)
+        return _frame_cost(
+            model, _to_closed(joint, p, qs), _to_closed(joint, cam[None], qs)[:, 0], moved, cfg
+        )
 
     grid = np.arange(lo, hi + 0.5 * cfg.coarse_step_rad, cfg.coarse_step_rad)
-    cost, _, _ = cost_at(grid)
+    # The coarse grid only has to land in the right basin: a subsample of the points will do.
+    cost, _, _ = cost_at(grid, max(1, pts.shape[0] // cfg.coarse_points))
     q0 = grid[int(np.argmin(cost))]
     fine = q0 + np.arange(-cfg.coarse_step_rad * 1.5, cfg.coarse_step_rad * 1.5 + 1e-12, cfg.fine_step_rad)
     cost, n_in, rms = cost_at(fine)
@@ -300,6 +368,9 @@ def refine_joint_states(
         A ``Joint`` with the same type, axis, pivot and pitch. Revolute and screw joints get a
         refined ``q``, ``q_range`` and ``confidence``; on frames whose ``q`` came from the depth
         fit, ``residual`` is its RMS point-to-surface distance (metres) instead of the tracks'.
+        Frames that neither the tracks nor the depth measured confidently get ``q`` bridged
+        from those that were, with their input confidence and residual. Confident tracked
+        frames without mask depth keep their ``q``.
         Prismatic and fixed joints come back unchanged.
 
     Raises:
@@ -313,7 +384,8 @@ def refine_joint_states(
     t_count = capture.num_frames
     q_in = np.asarray(joint.q, dtype=np.float64)
     conf_in = np.nan_to_num(np.asarray(joint.confidence, dtype=np.float64))
-    pts = [_lift_frame(capture, masks, t, part_label, c_from_s, cfg) for t in range(t_count)]
+    lifted = [_lift_frame(capture, masks, t, part_label, c_from_s, cfg) for t in range(t_count)]
+    pts = [p for p, _ in lifted]
     cams = (c_from_s @ np.asarray(capture.world_from_camera, dtype=np.float64))[:, :3, 3]
     has_depth = np.array([p.shape[0] >= cfg.min_points for p in pts])
     seeds = np.nonzero(has_depth & np.isfinite(q_in) & (conf_in >= cfg.seed_confidence))[0]
@@ -346,22 +418,33 @@ def refine_joint_states(
 
     q_out = q_in.copy()
     conf_out = conf_in.copy()
-    res_out = np.asarray(joint.residual, dtype=np.float64).copy()
+    res_in = np.asarray(joint.residual, dtype=np.float64)
+    res_out = res_in.copy()
+    # Frames whose ``q`` is vouched for: confident tracks (checked by depth where there is
+    # depth) or a confident depth fit. The others are bridged from them at the end.
+    anchor = np.isfinite(q_in) & (conf_in >= cfg.seed_confidence)
 
     def fit_and_decide(t: int, model: _Model) -> bool:
         """Fit frame ``t``; keep its tracked ``q`` if the depth agrees, else take the more
         confident of the two. True when the depth fit replaced ``q``."""
-        q_d, se, frac, rms = _fit_frame(joint, model, pts[t], cams[t], lo, hi, cfg)
+        q_d, se, frac, rms = _fit_frame(joint, model, pts[t], lifted[t][1], cams[t], lo, hi, cfg)
         conf_d = 0.0
         if frac >= cfg.min_inlier_fraction and np.isfinite(se):
-            conf_d = float(min(1.0, frac / 0.8) / (1.0 + (se / cfg.q_tolerance_rad) ** 2))
+            # Half the points unexplained is a guess (a door mostly out of view), not a fit: the
+            # inlier term rises from 0 at ``min_inlier_fraction`` to 1 at ``full_inlier_fraction``.
+            span = max(cfg.full_inlier_fraction - cfg.min_inlier_fraction, 1e-6)
+            explained = min(1.0, (frac - cfg.min_inlier_fraction) / span)
+            conf_d = float(explained / (1.0 + (se / cfg.q_tolerance_rad) ** 2))
         tracked_ok = np.isfinite(q_in[t]) and conf_in[t] >= cfg.seed_confidence
         if tracked_ok and abs(q_d - q_in[t]) <= cfg.agree_rad:
             conf_out[t] = max(conf_in[t], conf_d)
+            anchor[t] = True
             return False
         if conf_d > conf_in[t] or not np.isfinite(q_in[t]):
             q_out[t], conf_out[t], res_out[t] = q_d, conf_d, rms
+            anchor[t] = conf_d >= cfg.anchor_confidence
             return True
+        anchor[t] = tracked_ok
         return False
 
     # 1. Each seed against a model of the other seeds: a wrong seed must not vouch for itself.
@@ -381,11 +464,12 @@ def refine_joint_states(
             add_frame(t, float(q_out[t]))
             kept.append(t)
             model = model_of(kept) or model
-    # Frames the depth could not measure and the tracks were unsure of hold a stale ``q`` (the
-    # tracker's last value): bridge them from the nearest measured frames instead. Their
-    # confidence stays the input's: nothing measured them.
-    measured = np.isfinite(q_out) & (conf_out >= cfg.seed_confidence)
+    # Frames neither the tracks nor the depth measured well hold a stale ``q`` (the tracker's
+    # last value, or a weak depth fit of a door mostly out of view): bridge them from the
+    # anchors instead. Their confidence and residual stay the input's: nothing measured them.
+    measured = anchor & np.isfinite(q_out)
     stale = ~measured
+    conf_out[stale], res_out[stale] = conf_in[stale], res_in[stale]
     if measured.any() and stale.any():
         # Monotone cubic through the measured frames: a hand eases a door in and out, so a
         # straight line between the neighbours of a gap cuts the corner (3 deg on ``tiny``).
