@@ -1,17 +1,23 @@
 """End-to-end joint benchmark: register -> part masks -> 3D tracks -> joint fit, against ground truth.
 
 Unlike ``bench_tracking.py`` (true masks and registration), every stage here is the pipeline's
-own: ``register_recordings``, ``segment_parts`` on the canonical TSDF, ``track_part_points`` and
-``estimate_joint`` with the reference frame at frame 0 (as ``fit_joints`` uses by default).
-Segmented parts are matched to true parts by mask overlap. Per part: type correct, axis error
-(deg), pivot-line distance (mm, rotational joints), range error and state RMSE (deg or mm),
-median 3D track error (mm, each track's query-frame point moved by the true part motion), the
-true state reached by the last frame with tracks, and the seconds of the track and fit stages.
+own: ``register_recordings``, ``segment_parts`` on the canonical TSDF, ``track_part_points``,
+``estimate_joint`` with the reference frame at frame 0 (as ``fit_joints`` uses by default) and
+``refine_joint_states`` (each frame's state refitted against the part's depth, axis and pivot
+held). Segmented parts are matched to true parts by mask overlap. Per part: type correct, axis
+error (deg), pivot-line distance (mm, rotational joints), range and state RMSE (deg or mm) after
+the refinement with the tracks-only values beside them (``range_tracks``,
+``state_rmse_tracks``), the worst frame's state error, median 3D track error (mm, each track's
+query-frame point moved by the true part motion), the true state reached by the last frame with
+tracks, and the seconds of the track, fit and refine stages.
 
-Run: ``python bench/bench_pipeline_joints.py [--scenes door drawer ...] [--save-tracks DIR]``;
-prints a table and writes ``bench/results/pipeline_joints.json``. ``--save-tracks`` keeps each
-part's trajectories with its true motion (``DIR/<scene>_part<k>.npz``) so that the joint fit can
-be studied offline without re-running registration, masks and tracking.
+Run: ``python bench/bench_pipeline_joints.py [--scenes door drawer ...] [--save-tracks DIR]
+[--cache DIR]``; prints a table and writes ``bench/results/pipeline_joints.json``.
+``--save-tracks`` keeps each part's trajectories with its true motion (``DIR/<scene>_part<k>.npz``)
+so that the joint fit can be studied offline without re-running registration, masks and
+tracking. ``--cache`` reads registration, masks and tracks from ``DIR/<scene>.pkl`` (keys
+``canonical_from_session``, ``part``, ``hand``, ``score``, ``tracks``; ``label -> dict`` of
+``Trajectories`` fields) and runs only the fit and the refinement.
 """
 
 from __future__ import annotations
