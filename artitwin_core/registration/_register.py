@@ -179,7 +179,8 @@ def register_recordings(
         t3 = time.perf_counter()
         voxel = cfg.colored_icp_voxel_m
         s, d = at(voxel)
-        est = _reg.TransformationEstimationForColoredICP(lambda_geometric=0.9, kernel=_reg.TukeyLoss(k=1.5 * voxel))
+        est = _reg.TransformationEstimationForColoredICP(lambda_geometric=cfg.colored_icp_lambda_geometric,
+                                                        kernel=_reg.TukeyLoss(k=1.5 * voxel))
         crit = _reg.ICPConvergenceCriteria(relative_fitness=1e-7, relative_rmse=1e-7, max_iteration=30)
         try:
             r = _reg.registration_colored_icp(_normalised_colours(d), _normalised_colours(s), 2.0 * voxel,
