@@ -57,7 +57,7 @@ def fit_joints(trajectories: TrajectoriesArtifact, config: JointConfig) -> Joint
     return JointSet(joints=joints, selection=selection)
 
 
-@stage(name="joint_states", version=1, config=JointStateConfig, output=JointSet)
+@stage(name="joint_states", version=2, config=JointStateConfig, output=JointSet)
 def refine_states(
     joints: JointSet,
     dynamic: CaptureArtifact,
@@ -65,7 +65,8 @@ def refine_states(
     registration: Registration,
     config: JointStateConfig,
 ) -> JointSet:
-    """Each rotational joint's ``q(t)`` refitted against its part's depth, axis and pivot held.
+    """Each rotational joint's ``q(t)`` refitted against its part's depth, and a door's line fitted
+    to its face planes (``config.refine_line``).
 
     ``joint_<k>`` moves the part labelled ``k + 1`` in the masks (as ``track_parts`` and
     ``fit_joints`` number them). ``selection`` gains ``state_frames_changed`` per joint: how many
@@ -83,7 +84,7 @@ def refine_states(
         if label in labels:
             refined = refine_joint_states(
                 joint, capture, seq, label, registration.canonical_from_session,
-                StateRefineConfig(max_points=config.max_points),
+                StateRefineConfig(max_points=config.max_points, refine_axis=config.refine_line),
             )  # fmt: skip
             changed = int(np.count_nonzero(np.abs(np.asarray(refined.q) - np.asarray(joint.q)) > 1e-9))
             joint = refined

@@ -1,4 +1,4 @@
-"""Refining a rotational joint's per-frame state from depth, with its axis and pivot held fixed.
+"""Refining a rotational joint from depth: each frame's state, and a door's hinge line.
 
 Point tracks end when a door's front face turns out of view, and ``estimate_joint`` then holds
 ``q``: the fitted opening saturates short of the true one. The part's pixels still carry depth
@@ -28,23 +28,28 @@ frames that neither measured well (no mask depth, a door mostly out of view) are
 the measured ones by a monotone cubic, keeping their input confidence. Prismatic and fixed
 joints are returned unchanged: a drawer front's normal is the joint axis, which the free offset
 would absorb.
+
+Then (``refine_axis``) a revolute part that is a slab gets its line from the planes its faces
+show (``fit_line_from_planes``): the tracks on a weakly textured door slide along it and leave
+its pivot a centimetre off, which no per-frame state can undo. The frames whose face plane was
+measured keep the states that fit gives them, and the others are refitted as above with the
+new line.
 """
 
 from __future__ import annotations
 
 from dataclasses import dataclass, replace
 
-import cv2
 import numpy as np
 from scipy.interpolate import PchipInterpolator
-from scipy.spatial import cKDTree
 
 from artitwin_core._errors import InputError
 from artitwin_core.capture import Capture
+from artitwin_core.joints._depth_fit import fit_line_from_planes
 from artitwin_core.joints._model import joint_motion
+from artitwin_core.joints._surface import SurfaceModel, build_model, lift_frame, to_closed
 from artitwin_core.joints._types import Joint
 from artitwin_core.masks import MaskSequence
-from artitwin_core.tracking._lift import lift_pixels
 
 
 @dataclass(frozen=True)
@@ -83,6 +88,26 @@ class StateRefineConfig:
             the frame's points) is farther than this from its model match's is an outlier
             (90 turns the gate off).
         normal_oversample: frame normals are estimated on this many times ``max_points`` pixels.
+        refine_axis: after the per-frame pass, fit a door's line (axis and pivot) to the planes
+            its faces show in depth (``fit_line_from_planes``), then refit the other frames'
+            ``q`` with that line.
+        rest_rad: frames whose confident ``q`` is within this of 0 are at rest; their points
+            make the rest plane the turned faces are compared with.
+        plane_normal_tol_deg: a frame's face plane must turn no more than this from where the
+            per-frame state puts it.
+        plane_ransac_iterations, plane_ransac_band_m: RANSAC of each face plane (samples, and
+            the band in metres its score counts points in) before the robust refinement.
+        plane_min_fraction: the share of a frame's points its plane must hold (and of the rest
+            points, or the part is not a slab and its line is left to the tracks).
+        plane_outlier_z: a frame whose plane misses the fitted line by more than this many
+            standard errors is dropped and the line refitted (up to a third of the frames).
+        axis_min_frames: turned frames with a face plane the line fit needs.
+        axis_min_span_rad: the angle those frames must span.
+        axis_max_se_rad, axis_max_pivot_se_m: the line fit is used only when its standard
+            errors (axis direction, radians; line position, metres) are within these.
+        axis_max_change_rad, axis_max_shift_m: ... and when it turned the axis and moved the
+            line by no more than these from the input joint's (larger moves mean the model or
+            the matches are wrong, not the tracks).
     """
 
     max_points: int = 1500
@@ -112,13 +137,19 @@ class StateRefineConfig:
     normal_gate_deg: float = 20.0
     frame_normal_neighbours: int = 12
     normal_oversample: int = 4
-
-
-@dataclass
-class _Model:
-    points: np.ndarray  # [M, 3] closed-state points
-    normals: np.ndarray  # [M, 3]
-    tree: cKDTree
+    refine_axis: bool = True
+    rest_rad: float = float(np.radians(0.3))
+    plane_normal_tol_deg: float = 20.0
+    plane_ransac_iterations: int = 200
+    plane_ransac_band_m: float = 0.01
+    plane_min_fraction: float = 0.6
+    plane_outlier_z: float = 4.0
+    axis_min_frames: int = 3
+    axis_min_span_rad: float = float(np.radians(10.0))
+    axis_max_se_rad: float = float(np.radians(0.5))
+    axis_max_pivot_se_m: float = 0.005
+    axis_max_change_rad: float = float(np.radians(10.0))
+    axis_max_shift_m: float = 0.05
 
 
 def _validate(joint: Joint, capture: Capture, masks: MaskSequence, part_label: int, c_from_s) -> np.ndarray:
@@ -156,104 +187,8 @@ def _validate(joint: Joint, capture: Capture, masks: MaskSequence, part_label: i
     return c
 
 
-def _lift_frame(
-    capture: Capture, masks: MaskSequence, t: int, label: int, c_from_s, cfg
-) -> tuple[np.ndarray, np.ndarray | None]:
-    """Canonical points ``[N, 3]`` of frame ``t``'s part pixels (eroded, hand excluded) and their
-    unsigned surface normals ``[N, 3]`` (None when the normal gate is off).
-
-    Normals come from a denser lift (``normal_oversample`` times the points kept): from the
-    kept subsample alone, a door mostly out of view or cut by a hand gives too few neighbours."""
-    m = (masks.part[t] == label).astype(np.uint8)
-    if cfg.mask_erode_px > 0:
-        k = 2 * cfg.mask_erode_px + 1
-        m = cv2.erode(m, np.ones((k, k), np.uint8))
-    hand = np.asarray(masks.hand[t]).astype(np.uint8)
-    if cfg.hand_dilate_px > 0 and hand.any():
-        k = 2 * cfg.hand_dilate_px + 1
-        hand = cv2.dilate(hand, np.ones((k, k), np.uint8))
-    v, u = np.nonzero(m.astype(bool) & ~hand.astype(bool))
-    dense = cfg.max_points * (cfg.normal_oversample if cfg.normal_gate_deg < 90.0 else 1)
-    if u.size > dense:
-        idx = np.linspace(0, u.size - 1, dense).astype(np.int64)
-        u, v = u[idx], v[idx]
-    if u.size == 0:
-        return np.zeros((0, 3)), None
-    pose = c_from_s @ np.asarray(capture.world_from_camera[t], dtype=np.float64)
-    pts, ok = lift_pixels(
-        np.stack([u, v], -1).astype(np.float64),
-        np.asarray(capture.depth[t]),
-        None if capture.confidence is None else np.asarray(capture.confidence[t]),
-        np.asarray(capture.rgb_intrinsics[t]),
-        np.asarray(capture.depth_intrinsics[t]),
-        pose,
-        capture.distortion,
-        edge_rel=cfg.edge_rel,
-        min_confidence=cfg.min_depth_confidence,
-    )
-    pts = pts[ok]
-    normals = None
-    if cfg.normal_gate_deg < 90.0 and pts.shape[0] >= 3:
-        normals = _cloud_normals(pts, cfg)
-    if pts.shape[0] > cfg.max_points:
-        keep = np.linspace(0, pts.shape[0] - 1, cfg.max_points).astype(np.int64)
-        pts = pts[keep]
-        normals = None if normals is None else normals[keep]
-    return pts, normals
-
-
-def _to_closed(joint: Joint, pts: np.ndarray, q: np.ndarray) -> np.ndarray:
-    """Closed-state positions ``[Q, N, 3]`` of frame points ``[N, 3]`` under states ``q [Q]``."""
-    rot, trans = joint_motion(joint.joint_type, joint.axis, joint.pivot, q, joint.pitch)
-    # x = R c + t  =>  c = R^T (x - t)
-    return np.einsum("qji,qnj->qni", rot, pts[None] - trans[:, None, :])
-
-
-def _cloud_normals(points: np.ndarray, cfg: StateRefineConfig) -> np.ndarray:
-    """Unsigned PCA normals ``[N, 3]`` of one frame's points ``[N, 3]``."""
-    k = min(cfg.frame_normal_neighbours, points.shape[0])
-    _, nn = cKDTree(points).query(points, k=k)
-    nb = points[nn] - points[nn].mean(1, keepdims=True)
-    return np.linalg.eigh(np.einsum("mki,mkj->mij", nb, nb))[1][:, :, 0]
-
-
-def _build_model(points: np.ndarray, views: np.ndarray, cfg: StateRefineConfig) -> _Model | None:
-    """Voxel-merged closed-state model with normals turned towards the cameras that saw it.
-
-    ``points [N, 3]`` closed-state metres; ``views [N, 3]`` unit directions from each point
-    towards its camera, in the same frame. PCA normals have no sign; without a consistent one
-    the point-to-plane residuals of one surface split into two modes of opposite sign.
-    """
-    if points.shape[0] < cfg.normal_neighbours:
-        return None
-    keys = np.floor(points / cfg.voxel_m).astype(np.int64)
-    _, inv, counts = np.unique(keys, axis=0, return_inverse=True, return_counts=True)
-    inv = inv.reshape(-1)
-    merged = np.zeros((counts.size, 3))
-    np.add.at(merged, inv, points)
-    merged /= counts[:, None]
-    view = np.zeros((counts.size, 3))
-    np.add.at(view, inv, views)
-    if merged.shape[0] < cfg.normal_neighbours:
-        return None
-    tree = cKDTree(merged)
-    _, nn = tree.query(merged, k=cfg.normal_neighbours)
-    centroid = merged[nn].mean(1)
-    nb = merged[nn] - centroid[:, None, :]
-    cov = np.einsum("mki,mkj->mij", nb, nb)
-    _, vecs = np.linalg.eigh(cov)
-    normals = vecs[:, :, 0]
-    normals *= np.where(np.sum(normals * view, axis=1) < 0, -1.0, 1.0)[:, None]
-    if cfg.smooth_model:
-        # Each point onto its neighbours' plane: depth noise in the model would otherwise bias
-        # which model point is nearest to a frame point, unevenly across the surface.
-        merged = merged - np.sum((merged - centroid) * normals, axis=1, keepdims=True) * normals
-        tree = cKDTree(merged)
-    return _Model(merged, normals, tree)
-
-
 def _frame_cost(
-    model: _Model, closed: np.ndarray, cam: np.ndarray, normals: np.ndarray | None, cfg: StateRefineConfig
+    model: SurfaceModel, closed: np.ndarray, cam: np.ndarray, normals: np.ndarray | None, cfg: StateRefineConfig
 ):
     """Truncated point-to-plane cost per hypothesis of ``closed [Q, N, 3]`` seen from ``cam [Q, 3]``.
 
@@ -296,7 +231,7 @@ def _frame_cost(
 
 def _fit_frame(
     joint: Joint,
-    model: _Model,
+    model: SurfaceModel,
     pts: np.ndarray,
     nrm: np.ndarray | None,
     cam: np.ndarray,
@@ -312,7 +247,7 @@ def _fit_frame(
         rot = joint_motion(joint.joint_type, joint.axis, joint.pivot, qs, joint.pitch)[0]
         moved = None if n is None else np.einsum("qji,nj->qni", rot, n)
         return _frame_cost(
-            model, _to_closed(joint, p, qs), _to_closed(joint, cam[None], qs)[:, 0], moved, cfg
+            model, to_closed(joint, p, qs), to_closed(joint, cam[None], qs)[:, 0], moved, cfg
         )
 
     grid = np.arange(lo, hi + 0.5 * cfg.coarse_step_rad, cfg.coarse_step_rad)
@@ -352,7 +287,7 @@ def refine_joint_states(
     canonical_from_session: np.ndarray,
     config: StateRefineConfig | None = None,
 ) -> Joint:
-    """Refit each frame's ``q`` of a rotational joint against the part's depth (axis and pivot fixed).
+    """Refit each frame's ``q`` of a rotational joint against the part's depth, and a door's line.
 
     Args:
         joint: the fitted joint (``estimate_joint``'s), canonical frame, ``q [T]``.
@@ -365,9 +300,11 @@ def refine_joint_states(
         config: hyperparameters; ``StateRefineConfig()`` when None.
 
     Returns:
-        A ``Joint`` with the same type, axis, pivot and pitch. Revolute and screw joints get a
-        refined ``q``, ``q_range`` and ``confidence``; on frames whose ``q`` came from the depth
-        fit, ``residual`` is its RMS point-to-surface distance (metres) instead of the tracks'.
+        A ``Joint`` of the same type and pitch. Revolute and screw joints get a refined ``q``,
+        ``q_range`` and ``confidence``; on frames whose ``q`` came from the depth fit,
+        ``residual`` is its RMS point-to-surface distance (metres) instead of the tracks'. A
+        revolute slab's axis and pivot are those of its face planes where ``refine_axis`` is on
+        and that fit is trusted (else the input's).
         Frames that neither the tracks nor the depth measured confidently get ``q`` bridged
         from those that were, with their input confidence and residual. Confident tracked
         frames without mask depth keep their ``q``.
@@ -381,12 +318,35 @@ def refine_joint_states(
     c_from_s = _validate(joint, capture, masks, part_label, canonical_from_session)
     if joint.joint_type not in ("revolute", "screw"):
         return joint
-    t_count = capture.num_frames
+    lifted = [lift_frame(capture, masks, t, part_label, c_from_s, cfg) for t in range(capture.num_frames)]
+    cams = (c_from_s @ np.asarray(capture.world_from_camera, dtype=np.float64))[:, :3, 3]
+    refined = _refit_states(joint, lifted, cams, cfg)
+    if not cfg.refine_axis:
+        return refined
+    fit = fit_line_from_planes(refined, lifted, cams, cfg)
+    if fit is None:
+        return refined
+    # Second pass with the depth-fitted line: the frames the line was fitted on keep their
+    # jointly fitted ``q`` as confident seeds; every other frame is refitted (or bridged) from
+    # them, since its ``q`` was measured with the old line.
+    conf = np.where(fit.fitted, fit.confidence, np.where(fit.rest, refined.confidence, 0.0))
+    moved = replace(
+        refined,
+        axis=fit.axis,
+        pivot=fit.pivot,
+        q=np.where(fit.fitted, fit.q, refined.q),
+        residual=np.where(fit.fitted, fit.residual_m, refined.residual),
+        confidence=conf,
+    )
+    return _refit_states(moved, lifted, cams, cfg)
+
+
+def _refit_states(joint: Joint, lifted, cams: np.ndarray, cfg: StateRefineConfig) -> Joint:
+    """One pass of the per-frame ``q`` fit (steps 1-3 of the module docstring) with the joint's line held."""
+    t_count = cams.shape[0]
     q_in = np.asarray(joint.q, dtype=np.float64)
     conf_in = np.nan_to_num(np.asarray(joint.confidence, dtype=np.float64))
-    lifted = [_lift_frame(capture, masks, t, part_label, c_from_s, cfg) for t in range(t_count)]
     pts = [p for p, _ in lifted]
-    cams = (c_from_s @ np.asarray(capture.world_from_camera, dtype=np.float64))[:, :3, 3]
     has_depth = np.array([p.shape[0] >= cfg.min_points for p in pts])
     seeds = np.nonzero(has_depth & np.isfinite(q_in) & (conf_in >= cfg.seed_confidence))[0]
     if seeds.size == 0:
@@ -394,15 +354,15 @@ def refine_joint_states(
     closed: dict[int, tuple[np.ndarray, np.ndarray]] = {}
 
     def add_frame(t: int, q: float) -> None:
-        pts_closed = _to_closed(joint, pts[t], np.array([q]))[0]
-        cam = _to_closed(joint, cams[t][None], np.array([q]))[0, 0]
+        pts_closed = to_closed(joint, pts[t], np.array([q]))[0]
+        cam = to_closed(joint, cams[t][None], np.array([q]))[0, 0]
         view = cam - pts_closed
         closed[t] = (pts_closed, view / np.linalg.norm(view, axis=1, keepdims=True))
 
-    def model_of(frames) -> _Model | None:
+    def model_of(frames) -> SurfaceModel | None:
         if not frames:
             return None
-        return _build_model(
+        return build_model(
             np.concatenate([closed[f][0] for f in frames]),
             np.concatenate([closed[f][1] for f in frames]),
             cfg,
@@ -424,7 +384,7 @@ def refine_joint_states(
     # depth) or a confident depth fit. The others are bridged from them at the end.
     anchor = np.isfinite(q_in) & (conf_in >= cfg.seed_confidence)
 
-    def fit_and_decide(t: int, model: _Model) -> bool:
+    def fit_and_decide(t: int, model: SurfaceModel) -> bool:
         """Fit frame ``t``; keep its tracked ``q`` if the depth agrees, else take the more
         confident of the two. True when the depth fit replaced ``q``."""
         q_d, se, frac, rms = _fit_frame(joint, model, pts[t], lifted[t][1], cams[t], lo, hi, cfg)

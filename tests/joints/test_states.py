@@ -4,7 +4,9 @@ The tracker loses a door once its front face turns away (about 55 deg of 68.75 h
 ``estimate_joint`` holds ``q`` from there. These tests give the refinement the true axis and
 pivot with ``q`` cut at 55 deg (confidence 0 beyond, as the fitted joint reports it) and check
 the state it recovers from depth. Measured on ``tiny`` (true masks and registration): worst frame
-error 0.54 deg (the held input was off by up to 7.9 deg); the bound is 1 deg.
+error 0.54 deg (the held input was off by up to 7.9 deg); the bound is 1 deg. They test the
+per-frame pass with the line held (``refine_axis=False``); fitting the line itself is
+``test_line_from_planes.py``.
 """
 
 from dataclasses import replace
@@ -18,6 +20,7 @@ from artitwin_core.masks import MaskSequence
 from artitwin_core.synth import BENCHMARK_SCENES, generate_scene
 
 CUT_RAD = np.radians(55.0)
+HELD_LINE = StateRefineConfig(refine_axis=False)
 
 
 @pytest.fixture(scope="module")
@@ -51,7 +54,7 @@ def test_state_past_the_tracked_angle_is_recovered(tiny):
     joint_true = truth.joints[0]
     held = _held_joint(joint_true)
     assert np.degrees(np.abs(held.q - joint_true.q).max()) > 5.0  # the input really is wrong
-    out = refine_joint_states(held, scene.dynamic, masks, 1, truth.canonical_from_dynamic_session)
+    out = refine_joint_states(held, scene.dynamic, masks, 1, truth.canonical_from_dynamic_session, HELD_LINE)
 
     in_view = (truth.part_masks == 1).reshape(len(joint_true.q), -1).sum(1) > 0
     err = np.degrees(np.abs(out.q - joint_true.q))
@@ -73,7 +76,7 @@ def test_confident_frames_that_agree_are_kept(tiny):
     scene, masks = tiny
     truth = scene.truth
     held = _held_joint(truth.joints[0])
-    out = refine_joint_states(held, scene.dynamic, masks, 1, truth.canonical_from_dynamic_session)
+    out = refine_joint_states(held, scene.dynamic, masks, 1, truth.canonical_from_dynamic_session, HELD_LINE)
     tracked = held.confidence > 0
     np.testing.assert_array_equal(out.q[tracked], held.q[tracked])
 
@@ -89,7 +92,7 @@ def test_confident_frame_without_mask_depth_keeps_its_state(tiny):
     q = held.q.copy()
     q[5] += 0.02
     held = replace(held, q=q)
-    out = refine_joint_states(held, scene.dynamic, blank, 1, truth.canonical_from_dynamic_session)
+    out = refine_joint_states(held, scene.dynamic, blank, 1, truth.canonical_from_dynamic_session, HELD_LINE)
     assert out.q[5] == q[5]
 
 
@@ -102,7 +105,7 @@ def test_wrong_confident_state_is_not_kept_when_depth_disagrees(tiny):
     conf = held.confidence.copy()
     conf[6] = 0.4
     held = replace(held, q=q, confidence=conf)
-    out = refine_joint_states(held, scene.dynamic, masks, 1, truth.canonical_from_dynamic_session)
+    out = refine_joint_states(held, scene.dynamic, masks, 1, truth.canonical_from_dynamic_session, HELD_LINE)
     assert abs(np.degrees(out.q[6] - truth.joints[0].q[6])) < 1.0
 
 
@@ -110,7 +113,7 @@ def test_prismatic_joint_is_returned_unchanged(tiny):
     scene, masks = tiny
     truth = scene.truth
     drawer = replace(_held_joint(truth.joints[0]), joint_type="prismatic")
-    out = refine_joint_states(drawer, scene.dynamic, masks, 1, truth.canonical_from_dynamic_session)
+    out = refine_joint_states(drawer, scene.dynamic, masks, 1, truth.canonical_from_dynamic_session, HELD_LINE)
     assert out is drawer
 
 

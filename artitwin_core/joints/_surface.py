@@ -1,0 +1,128 @@
+"""The part's surface as depth sees it, shared by the state and axis refinements.
+
+Frames' part pixels are lifted to canonical points with normals (``lift_frame``), moved back to
+the closed state by a joint (``to_closed``) and merged into a closed-state point model with
+normals turned towards the cameras (``build_model``).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import TYPE_CHECKING
+
+import cv2
+import numpy as np
+from scipy.spatial import cKDTree
+
+from artitwin_core.capture import Capture
+from artitwin_core.joints._model import joint_motion
+from artitwin_core.joints._types import Joint
+from artitwin_core.masks import MaskSequence
+from artitwin_core.tracking._lift import lift_pixels
+
+if TYPE_CHECKING:
+    from artitwin_core.joints._states import StateRefineConfig
+
+
+@dataclass
+class SurfaceModel:
+    points: np.ndarray  # [M, 3] closed-state points
+    normals: np.ndarray  # [M, 3]
+    tree: cKDTree
+
+
+def lift_frame(
+    capture: Capture, masks: MaskSequence, t: int, label: int, c_from_s, cfg
+) -> tuple[np.ndarray, np.ndarray | None]:
+    """Canonical points ``[N, 3]`` of frame ``t``'s part pixels (eroded, hand excluded) and their
+    unsigned surface normals ``[N, 3]`` (None when the normal gate is off).
+
+    Normals come from a denser lift (``normal_oversample`` times the points kept): from the
+    kept subsample alone, a door mostly out of view or cut by a hand gives too few neighbours."""
+    m = (masks.part[t] == label).astype(np.uint8)
+    if cfg.mask_erode_px > 0:
+        k = 2 * cfg.mask_erode_px + 1
+        m = cv2.erode(m, np.ones((k, k), np.uint8))
+    hand = np.asarray(masks.hand[t]).astype(np.uint8)
+    if cfg.hand_dilate_px > 0 and hand.any():
+        k = 2 * cfg.hand_dilate_px + 1
+        hand = cv2.dilate(hand, np.ones((k, k), np.uint8))
+    v, u = np.nonzero(m.astype(bool) & ~hand.astype(bool))
+    dense = cfg.max_points * (cfg.normal_oversample if cfg.normal_gate_deg < 90.0 else 1)
+    if u.size > dense:
+        idx = np.linspace(0, u.size - 1, dense).astype(np.int64)
+        u, v = u[idx], v[idx]
+    if u.size == 0:
+        return np.zeros((0, 3)), None
+    pose = c_from_s @ np.asarray(capture.world_from_camera[t], dtype=np.float64)
+    pts, ok = lift_pixels(
+        np.stack([u, v], -1).astype(np.float64),
+        np.asarray(capture.depth[t]),
+        None if capture.confidence is None else np.asarray(capture.confidence[t]),
+        np.asarray(capture.rgb_intrinsics[t]),
+        np.asarray(capture.depth_intrinsics[t]),
+        pose,
+        capture.distortion,
+        edge_rel=cfg.edge_rel,
+        min_confidence=cfg.min_depth_confidence,
+    )
+    pts = pts[ok]
+    normals = None
+    if cfg.normal_gate_deg < 90.0 and pts.shape[0] >= 3:
+        normals = cloud_normals(pts, cfg)
+    if pts.shape[0] > cfg.max_points:
+        keep = np.linspace(0, pts.shape[0] - 1, cfg.max_points).astype(np.int64)
+        pts = pts[keep]
+        normals = None if normals is None else normals[keep]
+    return pts, normals
+
+
+def to_closed(joint: Joint, pts: np.ndarray, q: np.ndarray) -> np.ndarray:
+    """Closed-state positions ``[Q, N, 3]`` of frame points ``[N, 3]`` under states ``q [Q]``."""
+    rot, trans = joint_motion(joint.joint_type, joint.axis, joint.pivot, q, joint.pitch)
+    # x = R c + t  =>  c = R^T (x - t)
+    return np.einsum("qji,qnj->qni", rot, pts[None] - trans[:, None, :])
+
+
+def cloud_normals(points: np.ndarray, cfg: StateRefineConfig) -> np.ndarray:
+    """Unsigned PCA normals ``[N, 3]`` of one frame's points ``[N, 3]``."""
+    k = min(cfg.frame_normal_neighbours, points.shape[0])
+    _, nn = cKDTree(points).query(points, k=k)
+    nb = points[nn] - points[nn].mean(1, keepdims=True)
+    return np.linalg.eigh(np.einsum("mki,mkj->mij", nb, nb))[1][:, :, 0]
+
+
+def build_model(points: np.ndarray, views: np.ndarray, cfg: StateRefineConfig) -> SurfaceModel | None:
+    """Voxel-merged closed-state model with normals turned towards the cameras that saw it.
+
+    ``points [N, 3]`` closed-state metres; ``views [N, 3]`` unit directions from each point
+    towards its camera, in the same frame. PCA normals have no sign; without a consistent one
+    the point-to-plane residuals of one surface split into two modes of opposite sign.
+    """
+    if points.shape[0] < cfg.normal_neighbours:
+        return None
+    keys = np.floor(points / cfg.voxel_m).astype(np.int64)
+    _, inv, counts = np.unique(keys, axis=0, return_inverse=True, return_counts=True)
+    inv = inv.reshape(-1)
+    merged = np.zeros((counts.size, 3))
+    np.add.at(merged, inv, points)
+    merged /= counts[:, None]
+    view = np.zeros((counts.size, 3))
+    np.add.at(view, inv, views)
+    if merged.shape[0] < cfg.normal_neighbours:
+        return None
+    tree = cKDTree(merged)
+    _, nn = tree.query(merged, k=cfg.normal_neighbours)
+    centroid = merged[nn].mean(1)
+    nb = merged[nn] - centroid[:, None, :]
+    cov = np.einsum("mki,mkj->mij", nb, nb)
+    _, vecs = np.linalg.eigh(cov)
+    normals = vecs[:, :, 0]
+    normals *= np.where(np.sum(normals * view, axis=1) < 0, -1.0, 1.0)[:, None]
+    if cfg.smooth_model:
+        # Each point onto its neighbours' plane: depth noise in the model would otherwise bias
+        # which model point is nearest to a frame point, unevenly across the surface.
+        merged = merged - np.sum((merged - centroid) * normals, axis=1, keepdims=True) * normals
+        tree = cKDTree(merged)
+    return SurfaceModel(merged, normals, tree)
+
