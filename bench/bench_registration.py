@@ -5,7 +5,9 @@ static one (``register_recordings``), fuse the static recording into a TSDF mesh
 model (``build_canonical_tsdf``; the canonical renderer here is this TSDF ray-caster, not the
 Gaussian splatting twin), then label every dynamic frame (``segment_parts``) using the
 *estimated* registration, end to end. Reports rotation / translation error of the registration
-(degrees / metres), its residual (metres), the median part-mask IoU over frames where a part is
+(degrees / metres; the translation of ``canonical_from_session`` is its error at the dynamic
+session's origin, which lies up to a few metres from the furniture), the largest displacement of
+the cabinet's eight corners (``furniture_err_m``: where the error matters), its residual (metres), the median part-mask IoU over frames where a part is
 visible (> 50 pixels; predicted labels matched to true parts by best IoU), the fraction of true
 hand pixels labelled part, and seconds per stage (noisy: the machine is shared).
 
@@ -36,6 +38,17 @@ def pose_errors(estimate: np.ndarray, truth: np.ndarray) -> tuple[float, float]:
     d = np.linalg.inv(truth) @ estimate
     angle = np.degrees(np.arccos(np.clip((np.trace(d[:3, :3]) - 1.0) / 2.0, -1.0, 1.0)))
     return float(angle), float(np.linalg.norm(estimate[:3, 3] - truth[:3, 3]))
+
+
+def furniture_error(estimate: np.ndarray, truth: np.ndarray, size_m) -> float:
+    """Largest displacement (metres) of the cabinet's corners under ``estimate`` vs ``truth``.
+
+    The synthetic cabinet stands on the floor (y = 0), front face at z = 0, centred on x = 0."""
+    w, h, d = size_m
+    corners = np.array([[x, y, z, 1.0] for x in (-w / 2, w / 2) for y in (0.0, h) for z in (-d, 0.0)])
+    # The same canonical point, mapped through session coordinates by each transform.
+    diff = estimate @ np.linalg.inv(truth) @ corners.T - corners.T
+    return float(np.linalg.norm(diff[:3], axis=0).max())
 
 
 def mask_metrics(pred: np.ndarray, gt: np.ndarray, hand: np.ndarray, min_px: int = 50) -> dict:
@@ -84,6 +97,9 @@ def run_scene(name: str) -> dict:
         "scene": name,
         "rot_err_deg": rot,
         "trans_err_m": trans,
+        "furniture_err_m": furniture_error(
+            reg.canonical_from_session, scene.truth.canonical_from_dynamic_session, BENCHMARK_SCENES[name].size_m
+        ),
         "residual_m": reg.residual_m,
         "inliers": reg.inlier_fraction,
         **mask_metrics(seg.masks.part, scene.truth.part_masks, scene.truth.hand_masks),
@@ -110,12 +126,12 @@ def main() -> None:
         print(f"{name}: {row['rot_err_deg']:.3f} deg, {row['trans_err_m'] * 100:.2f} cm, "
               f"IoU {row['mask_iou_median']:.3f}, hand-as-part {row.get('hand_as_part', float('nan')):.3f}",
               flush=True)
-    columns = ["scene", "rot_err_deg", "trans_err_m", "residual_m", "inliers", "mask_iou_median",
+    columns = ["scene", "rot_err_deg", "trans_err_m", "furniture_err_m", "residual_m", "inliers", "mask_iou_median",
                "mask_iou_min", "hand_as_part", "parts_found", "parts_true", "register_s", "tsdf_s", "masks_s"]
     print("\nCanonical model for change detection: TSDF mesh of the static recording, ray-cast with open3d "
           "(not the Gaussian splatting twin). Masks use the estimated registration.\n")
     print_table(rows, columns)
-    targets = {"rot_err_deg": 0.5, "trans_err_m": 0.01, "mask_iou_median": 0.85, "hand_as_part": 0.05}
+    targets = {"rot_err_deg": 0.5, "trans_err_m": 0.01, "furniture_err_m": 0.01, "mask_iou_median": 0.85, "hand_as_part": 0.05}
     path = write_results(
         "registration", rows,
         {"canonical_renderer": "open3d TSDF mesh ray-cast (build_canonical_tsdf)", "targets": targets},
