@@ -5,6 +5,7 @@ pose (any renderer). ``build_canonical_tsdf`` gives a geometric canonical model 
 training. ``segment_parts`` runs the default, weight-free mask backend: moved parts from the
 vanished canonical surface (``segment_part_at_frame``), labelled backwards through the recording
 (``propagate_masks_backwards``). ``propagate_masks_sam2`` is the optional SAM2 backend.
+``summarize_masks`` and ``mask_overlay`` make the change report's curves and images.
 """
 
 from artitwin_core.change._canonical import CanonicalMesh, build_canonical_tsdf
@@ -20,12 +21,14 @@ from artitwin_core.change._parts import (
     segment_part_at_frame,
     segment_parts,
 )
+from artitwin_core.change._report import ChangeSummary, mask_overlay, summarize_masks
 from artitwin_core.change._sam2 import propagate_masks_sam2
 
 __all__ = [
     "CanonicalMesh",
     "ChangeConfig",
     "ChangeMaps",
+    "ChangeSummary",
     "FrameView",
     "PartConfig",
     "PartModel",
@@ -34,8 +37,10 @@ __all__ = [
     "detect_changes",
     "find_moved_parts",
     "frame_views",
+    "mask_overlay",
     "propagate_masks_backwards",
     "propagate_masks_sam2",
     "segment_part_at_frame",
     "segment_parts",
+    "summarize_masks",
 ]
