@@ -6,6 +6,8 @@ run inline or as Prefect tasks. New stages are added here, in order.
 
 from __future__ import annotations
 
+import base64
+import io
 import json
 import math
 import os
@@ -13,9 +15,13 @@ import shutil
 import subprocess
 import time
 from dataclasses import asdict
+from html import escape
 from importlib import metadata
 from pathlib import Path
 from typing import Any
+
+import numpy as np
+from PIL import Image
 
 from artitwin_core.capture import find_scene_recordings, recording_files
 from flows._runner import Executor, StageRun, raw_input
@@ -48,6 +54,9 @@ def scene_pipeline(scene: str | Path, config: PipelineConfig, ex: Executor) -> d
         config.part_masks,
         {"static": static, "static_poses": poses, "dynamic": dynamic, "registration": reg},
         "dynamic",
+    )
+    h["part_masks_report"] = ex.submit(
+        "part_masks_report", config.part_masks, {"dynamic": dynamic, "masks": masks, "registration": reg}, "dynamic"
     )
     # III. tracks and joints
     tracks = h["track"] = ex.submit("track", config.track, {"dynamic": dynamic, "masks": masks, "registration": reg}, "dynamic")
@@ -183,26 +192,49 @@ def build_summary(
     }
 
 
+def stage_report_html(report: StageReport) -> str:
+    """A stage report with images as one self-contained HTML page (images inlined as PNG)."""
+    rows = "".join(f"<tr><td>{escape(k)}</td><td>{v:.6g}</td></tr>" for k, v in sorted(report.metrics.items()))
+    notes = "".join(f"<li>{escape(n)}</li>" for n in report.notes)
+    figures = []
+    for image in report.images:
+        buf = io.BytesIO()
+        Image.fromarray(np.asarray(image.pixels, dtype=np.uint8)).save(buf, format="PNG")
+        data = base64.b64encode(buf.getvalue()).decode("ascii")
+        figures.append(
+            f'<figure><img src="data:image/png;base64,{data}" alt="{escape(image.caption)}">'
+            f"<figcaption>{escape(image.caption)}</figcaption></figure>"
+        )
+    return (
+        f"<!doctype html><html><head><meta charset='utf-8'><title>{escape(report.stage)}</title>"
+        "<style>body{font-family:sans-serif;margin:1.5em}figure{display:inline-block;margin:.4em}"
+        "img{image-rendering:pixelated;width:384px}td{padding:0 1em 0 0}</style></head><body>"
+        f"<h1>{escape(report.stage)}</h1>" + (f"<ul>{notes}</ul>" if notes else "")
+        + f"<table>{rows}</table>" + "".join(figures) + "</body></html>"
+    )
+
+
 def write_exports(store: ArtifactStore, runs: dict[str, StageRun], out_dir: str | Path) -> dict[str, str]:
-    """Write the export bundle's files under ``out_dir/export`` and the diagnosis reports as
+    """Write the export bundle's files under ``out_dir/export``, the diagnosis reports as
     ``out_dir/diagnosis.html`` (static recording and joints) and ``out_dir/diagnosis_dynamic.html``
-    (the articulated twin against the dynamic recording); return ``{path relative to out_dir: written path}``.
+    (the articulated twin against the dynamic recording), and every stage report with images as
+    ``out_dir/<stage>.html`` (the part masks over the frames: ``part_masks_report.html``); return
+    ``{path relative to out_dir: written path}``.
 
     Files are written to a staging folder that replaces ``export/`` in one rename, so an
     interrupted run leaves the previous export whole.
     """
     written: dict[str, str] = {}
     for run in runs.values():
+        if run.kind == StageReport.kind:
+            report = store.get(run.key, StageReport)
+            if report.images:
+                written[f"{run.stage}.html"] = str(_write_atomic(Path(out_dir) / f"{run.stage}.html", stage_report_html(report)))
         if run.kind == DiagnosisReport.kind:
             html = store.get(run.key, DiagnosisReport).html
             if html:
-                Path(out_dir).mkdir(parents=True, exist_ok=True)
                 name = "diagnosis.html" if run.stage == "diagnose" else f"diagnosis{run.stage[len('diagnose'):]}.html"
-                target = Path(out_dir) / name
-                tmp = target.with_name(f".{name}.{os.getpid()}.tmp")
-                tmp.write_text(html)
-                os.replace(tmp, target)
-                written[name] = str(target)
+                written[name] = str(_write_atomic(Path(out_dir) / name, html))
     runs_export = [r for r in runs.values() if r.kind == ExportBundle.kind]
     if not runs_export:
         return written
@@ -222,6 +254,14 @@ def write_exports(store: ArtifactStore, runs: dict[str, StageRun], out_dir: str 
     if old.exists():
         shutil.rmtree(old)
     return written | {f"export/{p}": str(final / p) for p in bundle.paths}
+
+
+def _write_atomic(target: Path, text: str) -> Path:
+    target.parent.mkdir(parents=True, exist_ok=True)
+    tmp = target.with_name(f".{target.name}.{os.getpid()}.tmp")
+    tmp.write_text(text)
+    os.replace(tmp, target)
+    return target
 
 
 def write_summary(summary: dict[str, Any], out_dir: str | Path) -> Path:

@@ -49,6 +49,15 @@ class PartMasksConfig(StageConfig):
     tsdf_voxel_m: float = Field(default=0.02, gt=0, description="Voxel of the canonical TSDF model, metres.")
     tsdf_max_frames: int = Field(default=20, ge=1, description="Static frames fused into the canonical TSDF.")
     max_depth_m: float = Field(default=4.5, gt=0, description="Depth beyond this is ignored, metres.")
+    sam2_checkpoint: str | None = Field(
+        default=None,
+        description="Path of a local SAM2 checkpoint (.pt). When set, the last frame's part labels from the geometric "
+        "backend are propagated backwards through the recording by SAM2's video predictor (the 'sam2' package must "
+        "import; nothing is downloaded); hand pixels stay the geometric backend's. Unset: geometric backend only.",
+    )
+    sam2_model_config: str = Field(
+        default="configs/sam2.1/sam2.1_hiera_l.yaml", description="SAM2 config name matching sam2_checkpoint."
+    )
 
 
 class TrackConfig(StageConfig):

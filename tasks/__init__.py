@@ -12,7 +12,7 @@ from tasks.export import export_twin
 from tasks.ingest import check_capture, ingest_recording
 from tasks.joints import fit_joints, refine_states
 from tasks.reconstruct import reconstruct_canonical, reconstruct_report, refine_capture_poses
-from tasks.register import label_parts, register_dynamic
+from tasks.register import label_parts, part_masks_report, register_dynamic
 from tasks.track import track_parts
 
 __all__ = [
@@ -27,6 +27,7 @@ __all__ = [
     "fit_joints",
     "ingest_recording",
     "label_parts",
+    "part_masks_report",
     "predict_dynamic",
     "predict_views",
     "reconstruct_canonical",

@@ -5,7 +5,15 @@ from __future__ import annotations
 import numpy as np
 
 from artitwin_core.capture import Capture
-from artitwin_core.change import PartConfig, build_canonical_tsdf, segment_parts
+from artitwin_core.change import (
+    PartConfig,
+    build_canonical_tsdf,
+    mask_overlay,
+    propagate_masks_sam2,
+    segment_parts,
+    summarize_masks,
+)
+from artitwin_core.masks import MaskSequence
 from artitwin_core.registration import RegistrationConfig, register_recordings
 from schemas import (
     CameraPoses,
@@ -14,6 +22,8 @@ from schemas import (
     PartMasksConfig,
     RegisterConfig,
     Registration,
+    ReportImage,
+    StageReport,
 )
 from tasks._convert import to_artifact, to_core
 from tasks._stage import stage
@@ -42,7 +52,8 @@ def label_parts(
     registration: Registration,
     config: PartMasksConfig,
 ) -> MaskSequenceArtifact:
-    """Part and hand masks of every dynamic frame against the canonical (static) geometry."""
+    """Part and hand masks of every dynamic frame against the canonical (static) geometry; with
+    ``config.sam2_checkpoint``, the part labels propagated backwards from the last frame by SAM2."""
     canonical = build_canonical_tsdf(
         to_core(Capture, static),
         voxel_m=config.tsdf_voxel_m,
@@ -50,11 +61,67 @@ def label_parts(
         max_frames=config.tsdf_max_frames,
         world_from_camera=static_poses.world_from_camera,
     )
-    seg = segment_parts(
-        to_core(Capture, dynamic),
-        registration.canonical_from_session,
-        canonical,
-        gravity=config.gravity,
-        config=PartConfig(),
-    )
-    return to_artifact(MaskSequenceArtifact, seg.masks)
+    capture = to_core(Capture, dynamic)
+    seg = segment_parts(capture, registration.canonical_from_session, canonical, gravity=config.gravity, config=PartConfig())
+    masks = seg.masks
+    if config.sam2_checkpoint:
+        part = propagate_masks_sam2(
+            capture.rgb, masks.part[-1], config.sam2_checkpoint, model_config=config.sam2_model_config
+        )
+        part[np.asarray(masks.hand, bool)] = 0
+        masks = MaskSequence(part=part, hand=masks.hand, score=masks.score)
+    return to_artifact(MaskSequenceArtifact, masks)
+
+
+@stage(name="part_masks_report", version=1, config=PartMasksConfig, output=StageReport)
+def part_masks_report(
+    dynamic: CaptureArtifact, masks: MaskSequenceArtifact, registration: Registration, config: PartMasksConfig
+) -> StageReport:
+    """The change report: how well the recording registered, which parts were found and when,
+    per-frame part and hand shares, and the masks drawn over the frames that matter."""
+    capture = to_core(Capture, dynamic)
+    seq = to_core(MaskSequence, masks)
+    summary = summarize_masks(seq)
+    k_count = summary.part_fraction.shape[0]
+    hand_px = float(np.asarray(seq.hand, bool).sum())
+    metrics = {
+        "parts_count": float(k_count),
+        "registration_residual_m": float(registration.residual_m),
+        "registration_inlier_frac": float(registration.inlier_fraction),
+        "hand_labelled_part_frac": float((np.asarray(seq.hand, bool) & (seq.part > 0)).sum() / hand_px) if hand_px else 0.0,
+        "mask_score_mean_frac": float(np.mean(seq.score)),
+    }
+    per_frame = {
+        "hand_frac": summary.hand_fraction.tolist(),
+        "mask_score_frac": np.asarray(seq.score, dtype=np.float64).tolist(),
+    }
+    notes = []
+    for k in range(k_count):
+        metrics[f"part_{k}_first_seen_index"] = float(summary.first_seen[k])
+        metrics[f"part_{k}_peak_frac"] = float(summary.part_fraction[k].max())
+        per_frame[f"part_{k}_frac"] = summary.part_fraction[k].tolist()
+    if k_count == 0:
+        notes.append(
+            "No moving part was found: nothing in the dynamic recording departs from the static scene. Check that "
+            "the part moved in view, and the registration residual."
+        )
+    if registration.inlier_fraction < 0.5:
+        notes.append(
+            f"Only {100 * registration.inlier_fraction:.0f}% of the dynamic points lie on the static surface after "
+            "registration: the recordings may not show the same room, or the registration failed."
+        )
+    if config.sam2_checkpoint:
+        notes.append(f"Part labels propagated by SAM2 ({config.sam2_checkpoint}).")
+    images = []
+    legend = ", ".join(f"part {k + 1} ({name})" for k, name in zip(range(k_count), _COLOUR_NAMES * 2, strict=False))
+    for t in summary.frames:
+        shown = [f"part {k + 1} {100 * summary.part_fraction[k, t]:.1f}%" for k in range(k_count)]
+        caption = f"frame {t}: " + ", ".join(shown + [f"hand {100 * summary.hand_fraction[t]:.1f}%"])
+        images.append(ReportImage(pixels=mask_overlay(capture.rgb[t], seq.part[t], seq.hand[t]), caption=caption))
+    if images and k_count:
+        notes.append(f"Overlays: {legend}, hand (red).")
+    return StageReport(stage="part_masks_report", metrics=metrics, notes=notes, per_frame=per_frame, images=images)
+
+
+# Names of artitwin_core.change._report.PART_COLOURS, in order, for the legend.
+_COLOUR_NAMES = ["orange", "blue", "purple", "green", "pink", "yellow"]

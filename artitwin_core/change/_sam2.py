@@ -60,7 +60,8 @@ def propagate_masks_sam2(
     except ImportError as err:
         raise InputError(
             f"SAM2 mask backend: the 'sam2' package does not import ({err}). Install SAM2 "
-            "(pip install 'git+https://github.com/facebookresearch/sam2') or use the default geometric backend."
+            "(pip install sam2, with the checkpoint downloaded beforehand) or use the default geometric backend "
+            "(leave part_masks.sam2_checkpoint unset)."
         ) from err
     dev = device or ("cuda" if torch.cuda.is_available() else "cpu")
     predictor = build(model_config, str(path), device=dev)

@@ -67,7 +67,7 @@ def test_scene_flow_writes_summary_and_reruns_from_cache(tmp_path, tiny_scene):
     assert summary["stages"].keys() == first["stages"].keys()
     assert set(summary["stages"]) == {
         "ingest/static", "ingest/dynamic", "capture_check/static", "capture_check/dynamic", "refine_poses",
-        "reconstruct", "reconstruct_report", "register", "part_masks", "track", "fit_joints",
+        "reconstruct", "reconstruct_report", "register", "part_masks", "part_masks_report", "track", "fit_joints",
         "joint_states", "articulate", "articulate_report", "predict_views", "diagnose", "predict_dynamic", "diagnose_dynamic",
         "export",
     }
@@ -91,6 +91,10 @@ def test_scene_flow_writes_summary_and_reruns_from_cache(tmp_path, tiny_scene):
     # The diagnosis compares the twin with the static recording and says what it found.
     assert summary["stages"]["diagnose"]["notes"], summary["stages"]["diagnose"]
     assert "<svg" in Path(summary["exports"]["diagnosis.html"]).read_text()
+    # The change report: one part found, the masks drawn over the frames in part_masks_report.html.
+    masks_report = summary["stages"]["part_masks_report"]["metrics"]
+    assert masks_report["parts_count"] == 1 and masks_report["hand_labelled_part_frac"] < 0.1, masks_report
+    assert Path(summary["exports"]["part_masks_report.html"]).read_text().count("<img") >= 3
     _check_dynamic_prediction(store, summary, tiny_scene)
     second = reconstruct_scene(str(tiny_scene), config=config, store=store, out=str(out))
     assert all(s["status"] == "cached" for s in second["stages"].values())
