@@ -2,8 +2,11 @@
 
 from __future__ import annotations
 
+from pathlib import Path
+
 import numpy as np
 
+from artitwin_core import InputError
 from artitwin_core.capture import Capture
 from artitwin_core.change import (
     PartConfig,
@@ -54,6 +57,12 @@ def label_parts(
 ) -> MaskSequenceArtifact:
     """Part and hand masks of every dynamic frame against the canonical (static) geometry; with
     ``config.sam2_checkpoint``, the part labels propagated backwards from the last frame by SAM2."""
+    if config.sam2_checkpoint and not Path(config.sam2_checkpoint).is_file():
+        # Before the geometric work, not after it.
+        raise InputError(
+            f"part_masks.sam2_checkpoint {config.sam2_checkpoint!r} does not exist. Give the path of a downloaded "
+            "SAM2 checkpoint (e.g. sam2.1_hiera_large.pt), or leave it unset for the geometric backend (no weights)."
+        )
     canonical = build_canonical_tsdf(
         to_core(Capture, static),
         voxel_m=config.tsdf_voxel_m,
@@ -113,7 +122,7 @@ def part_masks_report(
     if config.sam2_checkpoint:
         notes.append(f"Part labels propagated by SAM2 ({config.sam2_checkpoint}).")
     images = []
-    legend = ", ".join(f"part {k + 1} ({name})" for k, name in zip(range(k_count), _COLOUR_NAMES * 2, strict=False))
+    legend = ", ".join(f"part {k + 1} ({_COLOUR_NAMES[k % len(_COLOUR_NAMES)]})" for k in range(k_count))
     for t in summary.frames:
         shown = [f"part {k + 1} {100 * summary.part_fraction[k, t]:.1f}%" for k in range(k_count)]
         caption = f"frame {t}: " + ", ".join(shown + [f"hand {100 * summary.hand_fraction[t]:.1f}%"])
