@@ -109,9 +109,18 @@ def run(
         typer.Option("--effect", help="Model this physical effect (repeatable), e.g. exposure_white_balance: "
                      "`artitwin diagnose` names the ones a run needs. Cached stages upstream of it are reused."),
     ] = None,
+    sam2: Annotated[
+        Path | None,
+        typer.Option("--sam2", help="Local SAM2 checkpoint (.pt): propagate the part masks with SAM2's video "
+                     "predictor (needs the sam2 package; nothing is downloaded)."),
+    ] = None,
 ) -> None:
     """Run the whole pipeline on one scene."""
     cfg = _load_config(config, preset)
+    if sam2 is not None:
+        if not sam2.is_file():
+            _fail(f"--sam2: {sam2} does not exist; give the path of a downloaded SAM2 checkpoint.")
+        cfg = cfg.model_copy(update={"part_masks": cfg.part_masks.model_copy(update={"sam2_checkpoint": str(sam2.resolve())})})
     if effect:
         try:
             cfg = cfg.with_effects(effect)
