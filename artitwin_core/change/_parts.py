@@ -104,8 +104,6 @@ class PartConfig:
             RMS in 0-255 units), or where none is, the model's first surface (as a measured
             neighbour 2 sigma off in colour: weight exp(-2) = 0.135). See
             :func:`fill_depth_by_colour`.
-        grazing_min_cos: behind the part model, the observation still agrees within the part
-            tolerance divided by the cosine of the incidence, clipped to this (at most 3.3x).
     """
 
     change: ChangeConfig = field(default_factory=ChangeConfig)
@@ -142,7 +140,6 @@ class PartConfig:
     fill_radius_px: int = 2
     fill_sigma_colour: float = 20.0
     fill_model_weight: float = 0.135
-    grazing_min_cos: float = 0.3
 
 
 @dataclass(frozen=True)
@@ -1132,7 +1129,6 @@ def label_frame(
     label = np.zeros((height, width), np.uint8)
     margin = np.zeros((height, width))
     slope = np.zeros((height, width))
-    incidence = np.ones((height, width))
     for k, (model, q) in enumerate(zip(models, states, strict=True)):
         m = model.motion(q)
         moved = model.closed_points @ m[:3, :3].T + m[:3, 3]
@@ -1150,7 +1146,6 @@ def label_frame(
         cos = np.where(np.isfinite(cos_px), cos_px, cos_front)
         margin[nearer] = np.minimum(cfg.part_thickness_m / np.maximum(cos[nearer], 0.2), 0.1)
         slope[nearer] = np.sqrt(1.0 - np.minimum(cos[nearer], 1.0) ** 2) / np.maximum(cos[nearer], 0.1)
-        incidence[nearer] = np.clip(cos[nearer], cfg.grazing_min_cos, 1.0)
     if observed_rgb is not None:
         # Depth sensors drop the pixels on both sides of a depth edge: the outline of a hand in
         # front of the part, a door seen edge-on. Taken as no evidence against the model, they
@@ -1170,13 +1165,7 @@ def label_frame(
     in_front_of_static = ~np.isfinite(static_depth) | (best < static_depth + tol_static)
     tol = depth_tolerance(np.where(np.isfinite(best), best, 0.0), cfg.change)
     tight = cfg.part_depth_tol_m + cfg.part_depth_tol_per_m2 * np.where(np.isfinite(best), best, 0.0) ** 2
-    # Seen at incidence theta, a part model a centimetre off its surface (a pivot or state a
-    # little off) is tight / cos(theta) off along the ray: behind it, the observation may lie
-    # that far and still be the part. The open door of door+drawer, nearly edge-on in its last
-    # frames, lost up to half its pixels to the plain tolerance (p10 IoU 0.62 -> 0.66 with this;
-    # large-session-offset's door median 0.881 -> 0.890).
-    behind = np.maximum(tol, tight / incidence)
-    agrees = ~np.isfinite(obs) | ((obs < best + behind + quant) & (obs > best - tight - margin))
+    agrees = ~np.isfinite(obs) | ((obs < best + tol + quant) & (obs > best - tight - margin))
     part = np.where((label > 0) & in_front_of_static & agrees, label, 0).astype(np.uint8)
     part_closed = cv2.morphologyEx(part, cv2.MORPH_CLOSE, np.ones((3, 3), np.uint8))
     part = np.where((part == 0) & (part_closed > 0) & (label == part_closed), part_closed, part)

@@ -10,8 +10,7 @@ drawer 0.74, hand 5.1 %, closed drawer state within 5 mm.) With the drawer front
 from where it is seen slid out, the growth over frames and the part's own ICP: door 0.863,
 drawer 0.769, hand 3.5 %, closed drawer state within 10 mm, 9 mm off at the last frame; the
 shut drawer's IoU while the door opens 0.774. With pixels without depth filled from look-alike
-neighbours and the grazing-angle tolerance behind the part: door 0.878, drawer 0.761, hand
-1.8 %, shut drawer 0.785.
+neighbours: door 0.878, drawer 0.761, hand 1.8 %, shut drawer 0.785.
 """
 
 from __future__ import annotations
