@@ -4,9 +4,10 @@ Unlike ``bench_tracking.py`` (true masks and registration), every stage here is 
 own: ``register_recordings``, ``segment_parts`` on the canonical TSDF, ``track_part_points``,
 ``estimate_joint`` with the reference frame at frame 0 (as ``fit_joints`` uses by default) and
 ``refine_joint_states`` (each frame's state refitted against the part's depth, and a door's hinge
-line fitted to the planes its faces show). The canonical TSDF is fused at the static capture's
-recorded poses, the frame ``register_recordings`` registers into (never the true poses: on
-high-noise and sensor-effects those differ). Segmented parts are matched to true parts by mask overlap. Per part: type correct, axis
+line fitted to the planes its faces show). The canonical TSDF is fused at the static poses
+``refine_poses`` returns, as the pipeline's ``part_masks`` stage fuses it (``--static-poses
+recorded`` or ``true`` for the capture's recorded or the true poses; only on high-noise and
+sensor-effects do they differ much). Segmented parts are matched to true parts by mask overlap. Per part: type correct, axis
 error (deg), pivot-line distance (mm, rotational joints), range and state RMSE (deg or mm) after
 the refinement with the tracks-only values beside them (``range_tracks``,
 ``state_rmse_tracks``), the worst frame's state error, median 3D track error (mm, each track's
@@ -50,6 +51,7 @@ from artitwin_core.joints import (  # noqa: E402
     refine_joint_states,
 )
 from artitwin_core.masks import MaskSequence  # noqa: E402
+from artitwin_core.reconstruction import PoseRefineConfig, refine_poses  # noqa: E402
 from artitwin_core.registration import RegistrationConfig, register_recordings  # noqa: E402
 from artitwin_core.synth import BENCHMARK_SCENES, generate_scene  # noqa: E402
 from artitwin_core.tracking import TrackingConfig, Trajectories, track_part_points  # noqa: E402
@@ -89,12 +91,21 @@ def _joint_of_true_motion(traj, part_world_from_closed: np.ndarray, ref: int):
     return estimate_joint(exact, JointFitConfig(), reference_frame=ref).joint
 
 
-def _pipeline_upstream(name: str, scene) -> dict:
+def _static_poses(scene, source: str) -> np.ndarray:
+    """``[T, 4, 4]`` static poses the canonical TSDF is fused at."""
+    if source == "true":
+        return scene.truth.static_world_from_camera
+    if source == "recorded":
+        return scene.static.world_from_camera
+    return refine_poses(scene.static, PoseRefineConfig()).world_from_camera
+
+
+def _pipeline_upstream(name: str, scene, static_poses: str = "refined") -> dict:
     """Registration, part masks and each part label's 3D tracks, as the pipeline makes them."""
     s, d = scene.static, scene.dynamic
     t0 = time.perf_counter()
     reg = register_recordings(s, d, gravity=GRAVITY, config=RegistrationConfig())
-    canonical = build_canonical_tsdf(s)
+    canonical = build_canonical_tsdf(s, world_from_camera=_static_poses(scene, static_poses))
     seg = segment_parts(d, reg.canonical_from_session, canonical, gravity=GRAVITY, config=PartConfig())
     t_masks = time.perf_counter() - t0
     return {
@@ -126,10 +137,12 @@ def _cached_upstream(name: str, cache: Path) -> dict:
     }
 
 
-def bench_scene(name: str, save_tracks: Path | None = None, cache: Path | None = None) -> list[dict]:
+def bench_scene(
+    name: str, save_tracks: Path | None = None, cache: Path | None = None, static_poses: str = "refined"
+) -> list[dict]:
     scene = generate_scene(BENCHMARK_SCENES[name])
     d, truth = scene.dynamic, scene.truth
-    up = _cached_upstream(name, cache) if cache is not None else _pipeline_upstream(name, scene)
+    up = _cached_upstream(name, cache) if cache is not None else _pipeline_upstream(name, scene, static_poses)
     masks = up["masks"]
     rows = []
     labels = [int(v) for v in np.unique(masks.part) if v > 0]
@@ -238,11 +251,13 @@ def main() -> None:
         default=None,
         help="folder of <scene>.pkl upstream results (registration, masks, tracks) to fit from",
     )
+    parser.add_argument("--static-poses", choices=["refined", "recorded", "true"], default="refined",
+                        help="static poses the canonical TSDF is fused at (refined: as the pipeline)")
     args = parser.parse_args()
     cv2.setNumThreads(2)
     rows = []
     for name in args.scenes:
-        rows.extend(bench_scene(name, args.save_tracks, args.cache))
+        rows.extend(bench_scene(name, args.save_tracks, args.cache, args.static_poses))
         print(f"{name}: done", flush=True)
     columns = [
         "scene",
@@ -283,6 +298,7 @@ def main() -> None:
             "joints": repr(JointFitConfig()),
             "states": repr(StateRefineConfig()),
             "cache": str(args.cache) if args.cache else None,
+            "static_poses": args.static_poses,
         },
     )
     print(f"\nwrote {path}")
