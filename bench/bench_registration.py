@@ -2,13 +2,15 @@
 
 Per scene of ``artitwin_core.synth.BENCHMARK_SCENES``: register the dynamic recording onto the
 static one (``register_recordings``), fuse the static recording into a TSDF mesh as the canonical
-model (``build_canonical_tsdf``; the canonical renderer here is this TSDF ray-caster, not the
-Gaussian splatting twin), then label every dynamic frame (``segment_parts``) using the
-*estimated* registration, end to end. Reports rotation / translation error of the registration
-(degrees / metres; the translation of ``canonical_from_session`` is its error at the dynamic
-session's origin, which lies up to a few metres from the furniture), the largest displacement of
-the cabinet's eight corners (``furniture_err_m``: where the error matters), its residual (metres), the median part-mask IoU over frames where a part is
-visible (> 50 pixels; predicted labels matched to true parts by best IoU), the fraction of true
+model at the poses ``refine_poses`` returns (``build_canonical_tsdf``, as the pipeline does; the
+canonical renderer here is this TSDF ray-caster, not the Gaussian splatting twin), then label
+every dynamic frame (``segment_parts``) using the *estimated* registration, end to end. Reports
+rotation / translation error of the registration (degrees / metres; the translation of
+``canonical_from_session`` is its error at the dynamic session's origin, which lies up to a few
+metres from the furniture), the largest displacement of the cabinet's eight corners
+(``furniture_err_m``: where the error matters), its residual (metres), the median part-mask IoU
+over frames where a part is visible (> 50 pixels; predicted labels matched to true parts by best
+IoU), the fraction of true
 hand pixels labelled part, and seconds per stage (noisy: the machine is shared).
 
 Run: ``python bench/bench_registration.py [--scenes door drawer ...]``; prints a table and writes
@@ -30,6 +32,7 @@ sys.path.insert(0, str(Path(__file__).resolve().parent))
 from _common import print_table, write_results  # noqa: E402
 
 from artitwin_core.change import build_canonical_tsdf, segment_parts  # noqa: E402
+from artitwin_core.reconstruction import PoseRefineConfig, refine_poses  # noqa: E402
 from artitwin_core.registration import register_recordings  # noqa: E402
 from artitwin_core.synth import BENCHMARK_SCENES, generate_scene  # noqa: E402
 
@@ -88,7 +91,8 @@ def run_scene(name: str) -> dict:
     t1 = time.perf_counter()
     reg = register_recordings(scene.static, scene.dynamic)
     t2 = time.perf_counter()
-    mesh = build_canonical_tsdf(scene.static)
+    # Fused at refine_poses' output, as the pipeline's part_masks stage fuses it.
+    mesh = build_canonical_tsdf(scene.static, world_from_camera=refine_poses(scene.static, PoseRefineConfig()).world_from_camera)
     t3 = time.perf_counter()
     seg = segment_parts(scene.dynamic, reg.canonical_from_session, mesh)
     t4 = time.perf_counter()
