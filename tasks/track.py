@@ -12,7 +12,7 @@ from tasks._convert import to_core
 from tasks._stage import stage
 
 
-@stage(name="track", version=5, config=TrackConfig, output=TrajectoriesArtifact)
+@stage(name="track", version=6, config=TrackConfig, output=TrajectoriesArtifact)
 def track_parts(
     dynamic: CaptureArtifact, masks: MaskSequenceArtifact, registration: Registration, config: TrackConfig
 ) -> TrajectoriesArtifact:

@@ -66,6 +66,9 @@ class TrackingConfig:
             moved by the model's motion. Measured on "tiny" (door swinging 0.3 rad per frame):
             tracks reach true q 1.06 rad instead of 0.22.
         model_points: most surface points in that model (a random subset beyond).
+        patch_px: the model tracker's appearance test correlates grey levels in square patches
+            of the query image this many pixels wide, each normalised on its own, so that a
+            shadow cast over part of the face does not fail it; ``None`` = ``max(16, W / 16)``.
         model_depth_gate_m: a model-placed track's depth sample must lie this close to the moved
             query point (else it is occluded or off the surface); a 2D track farther than this
             from the model's prediction is replaced by it.
@@ -101,6 +104,7 @@ class TrackingConfig:
     min_valid_frames: int = 3
     model_tracking: bool = True
     model_points: int = 3000
+    patch_px: int | None = None
     model_depth_gate_m: float = 0.02
     seed: int = 0
 
@@ -119,6 +123,8 @@ class TrackingConfig:
             raise ValueError("TrackingConfig.ncc_min and reacquire_ncc_min must be in [-1, 1]")
         if self.model_points < 30 or not self.model_depth_gate_m > 0:
             raise ValueError("TrackingConfig.model_points must be >= 30 and model_depth_gate_m > 0")
+        if self.patch_px is not None and self.patch_px < 2:
+            raise ValueError(f"TrackingConfig.patch_px must be >= 2 pixels, got {self.patch_px}")
         if self.pyramid_levels < 0 or self.lk_iterations < 1 or self.min_valid_frames < 1:
             raise ValueError("TrackingConfig.pyramid_levels >= 0, lk_iterations >= 1, min_valid_frames >= 1")
 
@@ -135,4 +141,5 @@ class TrackingConfig:
             "mask_dilate_px": self.mask_dilate_px if self.mask_dilate_px is not None else max(1, round(width / 128)),
             "align_margin_px": self.align_margin_px if self.align_margin_px is not None else max(2, round(width / 64)),
             "window_px": win,
+            "patch_px": self.patch_px if self.patch_px is not None else max(16.0, width / 16),
         }

@@ -33,7 +33,8 @@ def _disk(radius: int) -> np.ndarray:
 
 
 def _masks(capture: Capture, part_masks, part_label: int):
-    """``(part [T, H, W] bool, hand [T, H, W] bool or None, score [T])`` validated."""
+    """``(part [T, H, W] bool, other parts [T, H, W] bool, hand [T, H, W] bool or None,
+    score [T])`` validated."""
     t_count, height, width = capture.rgb.shape[:3]
     if isinstance(part_masks, MaskSequence):
         labels, hand, score = part_masks.part, part_masks.hand, part_masks.score
@@ -52,7 +53,7 @@ def _masks(capture: Capture, part_masks, part_label: int):
     score = np.ones(t_count) if score is None else np.asarray(score, dtype=np.float64).reshape(-1)
     if score.shape != (t_count,):
         raise InputError(f"MaskSequence.score has {score.size} values; expected one per frame ({t_count})")
-    return labels == part_label, hand, score
+    return labels == part_label, (labels > 0) & (labels != part_label), hand, score
 
 
 def choose_query_frame(
@@ -268,7 +269,7 @@ def track_part_points(
     c_from_s = np.asarray(canonical_from_session, dtype=np.float64)
     if c_from_s.shape != (4, 4) or not np.all(np.isfinite(c_from_s)):
         raise InputError(f"canonical_from_session must be a finite 4x4 matrix, got shape {c_from_s.shape}")
-    part, hand, score = _masks(capture, part_masks, part_label)
+    part, others, hand, score = _masks(capture, part_masks, part_label)
     if not part.any():
         raise InputError(f"part label {part_label} appears in no frame of the masks; check part_label")
     sc = cfg.scaled(width)
@@ -339,9 +340,17 @@ def track_part_points(
         model_region = part[q] if hand is None else part[q] & ~hand[q]
         model_px = np.stack(np.nonzero(model_region)[::-1], -1).astype(np.float64)
         model_pts, model_ok = lift(q, model_px)
+
+        def occluders(t: int) -> np.ndarray:
+            # As labelled, without the hand's tracking margin: the margin covers the part's own
+            # pixels around the hand (a drawer's handle), whose contrast pins the part (with it,
+            # "door+drawer"'s open drawer sat 2 mm low).
+            return others[t] if hand is None else others[t] | hand[t]
+
         model = track_rigid(
             gray, capture.depth, poses, capture.rgb_intrinsics, capture.depth_intrinsics, allowed, q,
-            model_pts[model_ok], RigidParams(max_model_points=cfg.model_points),
+            model_pts[model_ok], RigidParams(max_model_points=cfg.model_points, patch_px=float(sc["patch_px"])),
+            occluders=occluders,
         )
     model_h = None if model is None or align is None else _model_homographies(model, q, query, points_q, poses, capture)
     pix = (
