@@ -32,7 +32,7 @@ from tasks._convert import to_artifact, to_core
 from tasks._stage import stage
 
 
-@stage(name="register", version=1, config=RegisterConfig, output=Registration)
+@stage(name="register", version=2, config=RegisterConfig, output=Registration)
 def register_dynamic(static: CaptureArtifact, dynamic: CaptureArtifact, config: RegisterConfig) -> Registration:
     """``canonical_from_session`` of the dynamic recording (yaw sweep about gravity, ICP, coloured ICP)."""
     cfg = RegistrationConfig(

@@ -55,6 +55,26 @@ def _point_to_plane_stats(source, target, transform: np.ndarray, inlier_m: float
     return residual, float(inl.mean())
 
 
+def _surface_noise_m(cloud: o3d.geometry.PointCloud, voxel: float) -> float:
+    """Robust spread (metres) of a fused cloud about its local planes: the median over points of
+    the RMS distance of their neighbours within ``3 * voxel`` to the neighbours' best plane
+    (depth noise left after voxel averaging, plus the surfaces' own curvature)."""
+    pts = np.asarray(cloud.points)
+    if len(pts) < 50:
+        return 0.0
+    rng = np.random.default_rng(0)
+    sample = pts[rng.choice(len(pts), size=min(len(pts), 3000), replace=False)]
+    tree = cKDTree(pts)
+    spreads = []
+    for p in sample:
+        idx = tree.query_ball_point(p, 3 * voxel)
+        if len(idx) < 10:
+            continue
+        nb = pts[idx] - pts[idx].mean(0)
+        spreads.append(np.sqrt(max(np.linalg.eigvalsh(nb.T @ nb / len(idx))[0], 0.0)))
+    return float(np.median(spreads)) if spreads else 0.0
+
+
 def _consistent_frames(static_tree: cKDTree, dynamic: Capture, transform: np.ndarray, cfg: RegistrationConfig):
     """Dynamic frames whose share of points far (> 5 cm) from the static cloud is within
     ``consistent_frame_margin`` of the lowest share; at least ``min_consistent_frames``."""
@@ -118,17 +138,23 @@ def register_recordings(
     base_s = fused_cloud(static, range(static.num_frames), voxel_m=finest, **common)
     base_d = fused_cloud(dynamic, range(n_dyn), voxel_m=finest, keep_fraction=keep, **common)
 
+    # Normals from neighbourhoods wide enough for the depth noise: a plane fitted within 3 voxels
+    # of a surface whose noise is comparable tilts with the noise, and point-to-plane ICP then
+    # slides (high-noise, sigma ~15 mm: 15 mm off at the furniture with 3 cm neighbourhoods).
+    noise = _surface_noise_m(base_s, finest) if cfg.normal_noise_radii > 0 else 0.0
+
     def at(voxel: float):
         if voxel not in clouds:
             s = base_s if voxel == finest else base_s.voxel_down_sample(voxel)
             d = base_d if voxel == finest else base_d.voxel_down_sample(voxel)
+            radius = max(3 * voxel, cfg.normal_noise_radii * noise)
             for c in (s, d):
-                c.estimate_normals(o3d.geometry.KDTreeSearchParamHybrid(radius=3 * voxel, max_nn=30))
+                c.estimate_normals(o3d.geometry.KDTreeSearchParamHybrid(radius=radius, max_nn=int(30 * (radius / (3 * voxel)) ** 2)))
             clouds[voxel] = (s, d)
         return clouds[voxel]
 
     diagnostics["fuse"] = {"seconds": time.perf_counter() - t0, "static_points": len(base_s.points),
-                           "dynamic_points": len(base_d.points)}
+                           "dynamic_points": len(base_d.points), "surface_noise_m": noise}
 
     # Global: yaw sweep on a coarse cloud, then the first ICP level decides between hypotheses.
     t1 = time.perf_counter()

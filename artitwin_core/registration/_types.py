@@ -40,6 +40,10 @@ class RegistrationConfig:
             whose share of points more than 5 cm from the static cloud is at most the lowest
             share plus this (frames where nothing has moved yet).
         min_consistent_frames: use at least this many frames (the most consistent ones).
+        normal_noise_radii: normals are estimated within this many times the static cloud's
+            surface noise (its spread about local planes), or 3 voxels if that is wider; 0
+            keeps 3 voxels. Noisy depth tilts normals fitted over too small a patch, and
+            point-to-plane ICP slides along the tilt.
     """
 
     max_depth_m: float = 4.5
@@ -57,6 +61,7 @@ class RegistrationConfig:
     inlier_distance_m: float = 0.02
     consistent_frame_margin: float = 0.03
     min_consistent_frames: int = 3
+    normal_noise_radii: float = 6.0
 
 
 @dataclass(frozen=True)
