@@ -136,6 +136,7 @@ class PartConfig:
     min_part_support: int = 20
     drawer_footprint_m: float | None = 0.02
     front_plane_tol_m: float = 0.01
+    front_clear_m: float = 0.05
     see_through_m: float = 0.05
     fill_radius_px: int = 2
     fill_sigma_colour: float = 20.0
@@ -511,7 +512,7 @@ def fit_part_motion(
     cfg = config or PartConfig()
     up, frames = _fit_setup(closed_points, views, gravity, reference_frame, cfg)
     best = _fit_ungrown(closed_points, onset_frame, views, up, frames, cfg, mesh)
-    return _grow_part(best, views[best.reference_frame], cfg, mesh)
+    return _fit_slide_and_grow(best, views, cfg, mesh)
 
 
 def _fit_setup(
@@ -768,15 +769,15 @@ def _grow_part(
         # slid out (never seen to vanish): its fill reaches past the outline. A door's rim
         # vanishes with it.
         reach = cfg.front_fill_reach_m if model.joint_type == "prismatic" else 0.0
-        outline, rect = model.closed_points, False
+        outline, rect = model.closed_points, None
         if model.joint_type == "prismatic" and abs(model.reference_q) >= cfg.front_seen_min_q_m:
             seen = _front_seen_open(model, view, front_level, mesh, cfg)
             if len(seen):
                 members = np.concatenate([members, seen])
                 outline = np.concatenate([seen, front[np.abs(front @ n - np.median(seen @ n)) < cfg.front_plane_tol_m]])
                 front = np.concatenate([front, seen])
-                reach, rect = 0.0, True
-        members = np.concatenate([members, _front_fill(outline, n, mesh, cfg.sample_m, reach, rectangle=rect)])
+                reach, rect = 0.0, _open_reach(model, view, outline, cfg)
+        members = np.concatenate([members, _front_fill(outline, n, mesh, cfg.sample_m, reach, extend_m=rect)])
     added = np.zeros(len(back), bool)
     if model.joint_type == "prismatic" and cfg.drawer_footprint_m is not None:
         # What slides with a drawer lies within its front's outline, seen along the slide: growth
@@ -799,6 +800,87 @@ def _grow_part(
     grown = o3d.geometry.PointCloud(o3d.utility.Vector3dVector(np.concatenate([members, back[added]])))
     grown = np.asarray(grown.voxel_down_sample(cfg.sample_m).points)
     return replace(model, closed_points=grown)
+
+
+def _fit_slide_and_grow(
+    model: PartModel, views: list[FrameView], cfg: PartConfig, mesh: CanonicalMesh | None
+) -> PartModel:
+    """The part grown at its reference frame (:func:`_grow_part`); a drawer first gets the slide
+    direction its front's outline shows over the frames (:func:`_slide_from_outline`)."""
+    grown = _grow_part(model, views[model.reference_frame], cfg, mesh)
+    if model.joint_type != "prismatic" or mesh is None:
+        return grown
+    slid = _slide_from_outline(model, grown, views, mesh, cfg)
+    return grown if slid is model else _grow_part(slid, views[model.reference_frame], cfg, mesh)
+
+
+def _slide_from_outline(
+    model: PartModel, grown: PartModel, views: list[FrameView], mesh: CanonicalMesh, cfg: PartConfig
+) -> PartModel:
+    """The drawer ``model`` (ungrown) sliding along its front's normal plus the drift of its
+    front's outline in the front's plane per metre of travel, measured over the frames where it
+    is open at least ``front_seen_min_q_m`` (states tracked from the reference frame with
+    ``grown``); ``model`` itself when the drift cannot be measured.
+
+    The slide along the normal alone assumes the front keeps its place in its plane as it
+    slides. A drawer that dips as it slides (non-ideal-joints: 0.04 rad at full travel, its
+    front 1.4 cm lower at the reference frame) does not: its outline seen slid out and moved
+    back along the normal landed 1.85 cm low (1.4 cm of dip, 0.4 cm from the fitted normal's
+    1 degree of upward tilt), and the front's top face seen from above, which the closed frames
+    show once the door above is open, went with it, inside the front. The 6-DOF motion ICP
+    finds at the reference frame does not tell (a flat front slides in its own plane: 2-16
+    degrees and 1-2 cm off on the benchmark drawers). The outline's edges that the frames see
+    clear (the plane is seen through just past them, :func:`_open_reach`) do: each moves linearly with the state, its slope is the
+    drift (a shared slope per in-plane axis, an offset per edge, least squares; at least three
+    edge positions over ``front_seen_min_q_m / 2`` of travel). On the ideal benchmark drawers it
+    comes out under 2 cm per metre."""
+    if abs(model.reference_q) < cfg.front_seen_min_q_m:
+        return model
+    r = model.reference_frame
+    # States of the open frames next to the reference frame, tracked as the masks are.
+    states = {r: model.reference_q}
+    for step in (-1, 1):
+        current, t = model.reference_q, r + step
+        while 0 <= t < len(views):
+            q, score = _best_state(grown, views[t], current, cfg)
+            if abs(q) < cfg.front_seen_min_q_m:
+                if step < 0:
+                    break  # earlier frames are less open still
+            elif score >= 0.5:
+                states[t] = q
+            current, t = q, t + step
+    n = model.front_normal
+    e1, e2 = _plane_axes(n)
+    front_level = np.quantile(model.closed_points @ n, 0.9)
+    edges: list[tuple[int, int, float, float]] = []  # (axis, side, state, position)
+    for t in sorted(states):
+        at_t = replace(model, reference_frame=t, reference_q=float(states[t]))
+        seen = _front_seen_open(at_t, views[t], front_level, mesh, cfg)
+        if len(seen) < cfg.min_part_support:
+            continue
+        clear = _open_reach(at_t, views[t], seen, cfg) <= cfg.sample_m
+        f2 = np.stack([seen @ e1, seen @ e2], 1)
+        ends = np.percentile(f2, [1, 99], axis=0)  # [side, axis]
+        edges += [(a, side, states[t], ends[side, a]) for a in (0, 1) for side in (0, 1) if clear[a, side]]
+    drift = np.zeros(2)
+    for a in (0, 1):
+        obs = np.array([e[1:] for e in edges if e[0] == a]).reshape(-1, 3)
+        if len(obs) < 3 or np.ptp(obs[:, 1]) < cfg.front_seen_min_q_m / 2:
+            continue
+        num = den = 0.0
+        for side in (0, 1):
+            q, x = obs[obs[:, 0] == side, 1], obs[obs[:, 0] == side, 2]
+            if len(q) < 2:
+                continue
+            num += float((q - q.mean()) @ (x - x.mean()))
+            den += float((q - q.mean()) @ (q - q.mean()))
+        if den > 0:
+            drift[a] = num / den
+    if not drift.any():
+        return model
+    axis = n + drift[0] * e1 + drift[1] * e2
+    # Same travel along the normal at the reference state.
+    return replace(model, axis=axis / np.linalg.norm(axis), reference_q=model.reference_q * float(np.linalg.norm(axis)))
 
 
 def _front_seen_open(
@@ -851,36 +933,43 @@ def _front_seen_open(
     return cand[added]
 
 
+_FACING = 0.7  # |cos| between a triangle's normal and the front's normal for it to be on the front
 _RECT_EXTEND_M = 0.05  # how far a drawer front's rectangle may widen past its samples (metres)
 
 
 def _front_fill(
     front: np.ndarray, normal: np.ndarray, mesh: CanonicalMesh, spacing: float, reach_m: float = 0.0,
-    rectangle: bool = False,
+    extend_m: np.ndarray | None = None,
 ) -> np.ndarray:
     """``[M, 3]`` samples of the canonical surface on the closed front's plane and inside its
     outline, about ``spacing`` apart: the parts of the front never seen to vanish (behind the
     hand that pulled it, out of view when it moved), which the part would otherwise lack when
     closed. (Filling the outline's plane instead also fills where the front is not flat or the
     outline overshoots: measured 0.04 lower IoU on the drawer benchmark scene.) With
-    ``rectangle`` the outline is the upright rectangle of :func:`_front_rectangle`."""
+    ``extend_m`` (``[2, 2]`` metres, see :func:`_front_rectangle`) the outline is the upright
+    rectangle of :func:`_front_rectangle`."""
     level = float(np.median(front @ normal))
     tris = mesh.triangles
-    centroids = mesh.vertices[tris].mean(1)
-    on_plane = np.abs(centroids @ normal - level) < 0.015
+    corners = mesh.vertices[tris]  # [F, 3, 3]
+    centroids = corners.mean(1)
+    cross = np.cross(corners[:, 1] - corners[:, 0], corners[:, 2] - corners[:, 0])
+    # On the plane and facing along its normal: a surface crossing the plane (the floor a bottom
+    # drawer's front stands on) has a strip within the band too.
+    facing = np.abs(cross @ normal) > _FACING * np.linalg.norm(cross, axis=1)
+    on_plane = (np.abs(centroids @ normal - level) < 0.015) & facing
     e1, e2 = _plane_axes(normal)
-    if rectangle:
+    if extend_m is not None:
         f2 = np.stack([front @ e1, front @ e2], 1)
         c2 = np.stack([centroids[on_plane] @ e1, centroids[on_plane] @ e2], 1)
-        wide = np.array([_RECT_EXTEND_M + 0.03, 0.03])  # whole triangles reaching into the rectangle
-        on_plane[on_plane] = np.all((c2 >= np.percentile(f2, 1, axis=0) - wide)
-                                    & (c2 <= np.percentile(f2, 99, axis=0) + wide), axis=1)
+        wide = extend_m + 0.03  # whole triangles reaching as far as each edge may move
+        on_plane[on_plane] = np.all((c2 >= np.percentile(f2, 1, axis=0) - wide[:, 0])
+                                    & (c2 <= np.percentile(f2, 99, axis=0) + wide[:, 1]), axis=1)
     else:
         on_plane[on_plane] = _behind_outline(centroids[on_plane], front, normal, -reach_m)
     if not on_plane.any():
         return np.zeros((0, 3))
-    corners = mesh.vertices[tris[on_plane]]  # [F, 3, 3]
-    area = 0.5 * np.linalg.norm(np.cross(corners[:, 1] - corners[:, 0], corners[:, 2] - corners[:, 0]), axis=1)
+    corners = corners[on_plane]
+    area = 0.5 * np.linalg.norm(cross[on_plane], axis=1)
     count = np.maximum(np.ceil(2.0 * area / spacing**2), 1).astype(np.int64)
     rng = np.random.default_rng(0)  # deterministic masks for the same inputs
     face = np.repeat(np.arange(len(corners)), count)
@@ -890,47 +979,121 @@ def _front_fill(
     c = corners[face]
     pts = c[:, 0] + a[:, None] * (c[:, 1] - c[:, 0]) + b[:, None] * (c[:, 2] - c[:, 0])
     pts = pts[np.abs(pts @ normal - level) < 0.015]
-    if not rectangle:
+    if extend_m is None:
         return pts[_behind_outline(pts, front, normal, -reach_m)]
-    lo, hi = _front_rectangle(front, normal, pts, spacing)
+    lo, hi = _front_rectangle(front, normal, pts, spacing, extend_m)
     p2 = np.stack([pts @ e1, pts @ e2], 1)
     return pts[np.all((p2 >= lo - reach_m) & (p2 <= hi + reach_m), axis=1)]
 
 
 def _front_rectangle(
-    front: np.ndarray, normal: np.ndarray, plane_points: np.ndarray, spacing: float, max_extend_m: float = _RECT_EXTEND_M
+    front: np.ndarray, normal: np.ndarray, plane_points: np.ndarray, spacing: float, extend_m: np.ndarray
 ) -> tuple[np.ndarray, np.ndarray]:
     """The upright rectangle ``(lo, hi)`` (``[2]`` each, along ``_plane_axes(normal)``) a drawer
-    front covers: the 1st to 99th percentiles of its samples ``front [M, 3]``, widened sideways
-    (up to ``max_extend_m``) as far as the canonical surface ``plane_points [P, 3]`` continues
-    on the front's plane across the front's full height. A drawer front is a rectangle; a strip
-    at its side that was hidden at the reference frame and overlaps the carcass (so it never
-    vanished) is found so, since the carcass beside it is a couple of centimetres back."""
+    front covers: the 1st to 99th percentiles of its samples ``front [M, 3]``, each edge moved
+    out (up to ``extend_m [2, 2]`` metres: per axis, lo and hi side) as far as the canonical
+    surface ``plane_points [P, 3]`` continues on the front's plane across the front's full
+    extent along that edge. A drawer front is a rectangle; a strip at its side that was hidden
+    at the reference frame and overlaps the carcass (so it never vanished) is found so, since
+    the carcass beside it is a couple of centimetres back; so is the bottom of a bottom
+    drawer's front that dipped to the floor as it slid out (the floor is not on the plane).
+    Each edge moves from the percentile rectangle."""
     e1, e2 = _plane_axes(normal)
     f2 = np.stack([front @ e1, front @ e2], 1)
     lo, hi = np.percentile(f2, 1, axis=0), np.percentile(f2, 99, axis=0)
-    if len(plane_points) == 0 or hi[1] - lo[1] < 4 * spacing:
-        return lo, hi
+    out_lo, out_hi = lo.copy(), hi.copy()
+    if len(plane_points) == 0:
+        return out_lo, out_hi
     p2 = np.stack([plane_points @ e1, plane_points @ e2], 1)
-    band = p2[(p2[:, 1] >= lo[1]) & (p2[:, 1] <= hi[1])]
-    rows = np.arange(lo[1], hi[1], 2 * spacing)
+    for axis in (0, 1):
+        other = 1 - axis
+        if hi[other] - lo[other] < 4 * spacing:
+            continue
+        band = p2[(p2[:, other] >= lo[other]) & (p2[:, other] <= hi[other])]
+        bins = np.append(np.arange(lo[other], hi[other], 2 * spacing), hi[other])
 
-    def full_height(x0: float, x1: float) -> bool:
-        col = band[(band[:, 0] >= x0) & (band[:, 0] < x1), 1]
-        return len(col) > 0 and np.mean(np.histogram(col, bins=np.append(rows, hi[1]))[0] > 0) >= 0.8
+        def full_extent(a0: float, a1: float) -> bool:
+            line = band[(band[:, axis] >= a0) & (band[:, axis] < a1), other]
+            return len(line) > 0 and np.mean(np.histogram(line, bins=bins)[0] > 0) >= 0.8
 
-    for side, sign in ((0, -1.0), (1, 1.0)):
-        edge = lo[0] if side == 0 else hi[0]
-        for _ in range(int(max_extend_m / spacing)):
-            x0, x1 = sorted((edge, edge + sign * spacing))
-            if not full_height(x0, x1):
-                break
-            edge += sign * spacing
-        if side == 0:
-            lo[0] = edge
-        else:
-            hi[0] = edge
-    return lo, hi
+        for side, sign in ((0, -1.0), (1, 1.0)):
+            edge = lo[axis] if side == 0 else hi[axis]
+            for _ in range(int(round(extend_m[axis, side] / spacing))):
+                a0, a1 = sorted((edge, edge + sign * spacing))
+                if not full_extent(a0, a1):
+                    break
+                edge += sign * spacing
+            if side == 0:
+                out_lo[axis] = edge
+            else:
+                out_hi[axis] = edge
+    return out_lo, out_hi
+
+
+def _open_reach(model: PartModel, view: FrameView, front: np.ndarray, cfg: PartConfig) -> np.ndarray:
+    """``[2, 2]`` metres: how far past each edge of a drawer front's rectangle (per axis of
+    ``_plane_axes(front_normal)``, lo and hi side; the percentiles of ``front [M, 3]``, closed
+    state) the front may go on as ``view`` sees it at the part's reference state, in steps of
+    ``sample_m`` up to ``_RECT_EXTEND_M``: up to the first strip along the edge where the plane
+    is seen through (on most of its rays with a measured depth, the depth lies at least
+    ``front_clear_m`` behind the plane). Past a free edge of a slid-out drawer the camera sees
+    into the drawer, the carcass or the room: 0 there, unless the samples stop short of the
+    edge (then the front itself is seen on the plane first). Where something in front hides
+    the plane (the floor a bottom drawer dips to as it slides, a door, the hand) or nothing is
+    measured, the front may go on, and the canonical surface decides (:func:`_front_rectangle`).
+    Points past the edge in the plane's own coordinates would not do: the drawer's sides lie
+    behind its front within its outline, past an edge of samples short of the real one."""
+    n = model.front_normal
+    e1, e2 = _plane_axes(n)
+    f2 = np.stack([front @ e1, front @ e2], 1)
+    lo, hi = np.percentile(f2, 1, axis=0), np.percentile(f2, 99, axis=0)
+    level = float(np.median(front @ n))
+    m = model.motion(model.reference_q)
+    fx, fy, cx, cy = view.depth_intrinsics
+    h, w = view.observed_depth.shape
+    corner = 2.0 * cfg.sample_m  # rays near a corner pass beside the other edge too
+    steps = int(round(_RECT_EXTEND_M / cfg.sample_m))
+    look = steps + 3  # strips looked at: a few past the farthest reach
+    reach = np.full((2, 2), steps * cfg.sample_m)
+    for axis in (0, 1):
+        other = 1 - axis
+        along = np.arange(lo[other] + corner, hi[other] - corner, cfg.sample_m)
+        if len(along) == 0:
+            continue
+        for side, sign in ((0, -1.0), (1, 1.0)):
+            edge = lo[axis] if side == 0 else hi[axis]
+            across = edge + sign * (np.arange(look) + 0.5) * cfg.sample_m
+            a, b = np.meshgrid(across, along, indexing="ij")  # [look, len(along)]
+            coords = (a, b) if axis == 0 else (b, a)
+            closed = level * n + coords[0][..., None] * e1 + coords[1][..., None] * e2
+            cam = (closed @ m[:3, :3].T + m[:3, 3] - view.world_from_camera[:3, 3]) @ view.world_from_camera[:3, :3]
+            z = cam[..., 2]
+            ok = z > 0.05
+            zs = np.where(ok, z, 1.0)
+            u = np.rint(cam[..., 0] / zs * fx + cx).astype(np.int64)
+            v = np.rint(cam[..., 1] / zs * fy + cy).astype(np.int64)
+            ok &= (u >= 0) & (u < w) & (v >= 0) & (v < h)
+            obs = np.full(z.shape, np.nan)
+            obs[ok] = view.observed_depth[v[ok], u[ok]]
+            measured = np.isfinite(obs)
+            through = measured & (obs > z + depth_tolerance(z, cfg.change) + cfg.front_clear_m)
+            in_view, n_measured = ok.sum(1), measured.sum(1)
+            # Per strip: 1 seen through, 0 the plane or something in front of it is seen, -1 in
+            # view but mostly without depth, None out of view.
+            seen = [None if in_view[k] < 3 else -1 if n_measured[k] < 0.5 * in_view[k]
+                    else int(through[k].sum() >= 0.5 * n_measured[k]) for k in range(look)]
+            for k in range(steps):
+                if seen[k] == 1:
+                    reach[axis, side] = k * cfg.sample_m
+                    break
+                # The sensor gives no depth on either side of a depth edge: a run of strips
+                # without depth followed by one seen through holds the front's edge (not when
+                # something in front follows: that is its outline, the front may go on behind).
+                run = next((j for j in range(k, look) if seen[j] != -1), look)
+                if seen[k] == -1 and run < look and seen[run] == 1:
+                    reach[axis, side] = k * cfg.sample_m
+                    break
+    return reach
 
 
 def _plane_axes(normal: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -1320,7 +1483,7 @@ def segment_part_at_frame(
             # another reason. strong-hand-occlusion's cabinet side, seen edge-on, vanished from
             # the first frame on and came out as a second part with no support at all.
             continue
-        models.append(_grow_part(model, view, cfg, mesh))
+        models.append(_fit_slide_and_grow(model, views, cfg, mesh))
     return models
 
 
