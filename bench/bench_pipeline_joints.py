@@ -19,12 +19,12 @@ joint that moves the part as it moved); ``reg_at_pivot_mm`` is the registration'
 true pivot, which a fitted pivot inherits.
 
 Run: ``python bench/bench_pipeline_joints.py [--scenes door drawer ...] [--save-tracks DIR]
-[--cache DIR]``; prints a table and writes ``bench/results/pipeline_joints.json``.
+[--cache DIR | --write-cache DIR]``; prints a table and writes ``bench/results/pipeline_joints.json``.
 ``--save-tracks`` keeps each part's trajectories with its true motion (``DIR/<scene>_part<k>.npz``)
 so that the joint fit can be studied offline without re-running registration, masks and
 tracking. ``--cache`` reads registration, masks and tracks from ``DIR/<scene>.pkl`` (keys
 ``canonical_from_session``, ``part``, ``hand``, ``score``, ``tracks``; ``label -> dict`` of
-``Trajectories`` fields) and runs only the fit and the refinement.
+``Trajectories`` fields; ``--write-cache`` writes them) and runs only the fit and the refinement.
 """
 
 from __future__ import annotations
@@ -117,7 +117,7 @@ def _pipeline_upstream(name: str, scene, static_poses: str = "refined") -> dict:
 
 
 def _cached_upstream(name: str, cache: Path) -> dict:
-    """The same upstream results read from ``cache/<scene>.pkl`` (keys of /tmp/cache_pj/make_cache.py)."""
+    """The same upstream results read from ``cache/<scene>.pkl``, as ``--write-cache`` writes them."""
     with open(cache / f"{name}.pkl", "rb") as f:
         c = pickle.load(f)
     tracks = {
@@ -137,8 +137,29 @@ def _cached_upstream(name: str, cache: Path) -> dict:
     }
 
 
+def _write_cache(name: str, up: dict, cache: Path) -> None:
+    """``up`` (registration, masks, every part label's tracks) to ``cache/<scene>.pkl``."""
+    cache.mkdir(parents=True, exist_ok=True)
+    payload = {
+        "canonical_from_session": up["canonical_from_session"],
+        "part": up["masks"].part,
+        "hand": up["masks"].hand,
+        "score": up["masks"].score,
+        "tracks": {
+            lab: {"points_in_world": tr.points_in_world, "pixels": tr.pixels, "valid": tr.valid,
+                  "query_frame": tr.query_frame}
+            for lab, tr in up["tracks"].items()
+        },
+    }
+    tmp = cache / f"{name}.pkl.tmp"
+    with open(tmp, "wb") as f:
+        pickle.dump(payload, f)
+    tmp.replace(cache / f"{name}.pkl")
+
+
 def bench_scene(
-    name: str, save_tracks: Path | None = None, cache: Path | None = None, static_poses: str = "refined"
+    name: str, save_tracks: Path | None = None, cache: Path | None = None, static_poses: str = "refined",
+    write_cache: Path | None = None,
 ) -> list[dict]:
     scene = generate_scene(BENCHMARK_SCENES[name])
     d, truth = scene.dynamic, scene.truth
@@ -168,6 +189,7 @@ def bench_scene(
                 d, masks, up["canonical_from_session"], part_label=label, config=TrackingConfig()
             )
             row["track_s"] = time.perf_counter() - t0
+            up["tracks"][label] = traj
         if save_tracks is not None:
             save_tracks.mkdir(parents=True, exist_ok=True)
             np.savez_compressed(
@@ -233,6 +255,8 @@ def bench_scene(
             unit="deg" if rotational else "mm",
         )
         rows.append(row)
+    if write_cache is not None:
+        _write_cache(name, up, write_cache)
     return rows
 
 
@@ -251,13 +275,19 @@ def main() -> None:
         default=None,
         help="folder of <scene>.pkl upstream results (registration, masks, tracks) to fit from",
     )
+    parser.add_argument(
+        "--write-cache",
+        type=Path,
+        default=None,
+        help="folder to write each scene's upstream results to (<scene>.pkl, read back by --cache)",
+    )
     parser.add_argument("--static-poses", choices=["refined", "recorded", "true"], default="refined",
                         help="static poses the canonical TSDF is fused at (refined: as the pipeline)")
     args = parser.parse_args()
     cv2.setNumThreads(2)
     rows = []
     for name in args.scenes:
-        rows.extend(bench_scene(name, args.save_tracks, args.cache, args.static_poses))
+        rows.extend(bench_scene(name, args.save_tracks, args.cache, args.static_poses, args.write_cache))
         print(f"{name}: done", flush=True)
     columns = [
         "scene",
