@@ -90,17 +90,30 @@ def _weighted_plane(points: np.ndarray, w: np.ndarray) -> tuple[np.ndarray, np.n
 def _robust_plane(
     points: np.ndarray, guess: np.ndarray, cfg: StateRefineConfig, rng: np.random.Generator
 ) -> _Plane | None:
-    """The dominant plane of ``points [N, 3]`` whose normal is within ``plane_normal_tol_deg`` of
-    ``guess [3]`` (unit), returned with the guess's sign: RANSAC, then Tukey-weighted PCA.
+    """:func:`robust_plane` with ``StateRefineConfig``'s ``min_points`` and ``plane_*`` fields."""
+    return robust_plane(
+        points, guess, rng, min_points=cfg.min_points, normal_tol_deg=cfg.plane_normal_tol_deg,
+        iterations=cfg.plane_ransac_iterations, band_m=cfg.plane_ransac_band_m,
+    )
+
+
+def robust_plane(
+    points: np.ndarray, guess: np.ndarray, rng: np.random.Generator, *, min_points: int,
+    normal_tol_deg: float, iterations: int, band_m: float,
+) -> _Plane | None:
+    """The dominant plane of ``points [N, 3]`` whose normal is within ``normal_tol_deg`` of
+    ``guess [3]`` (unit), returned with the guess's sign: RANSAC (``iterations`` 3-point samples
+    scored in a band of ``band_m`` metres), then Tukey-weighted PCA; None with fewer than
+    ``min_points`` points or no such plane.
 
     The inlier band scales with the points' own scatter about the plane, so it admits the depth
     noise of far or noisy frames and refuses a door's edge face or the carcass beside it."""
     n = points.shape[0]
-    if n < cfg.min_points:
+    if n < min_points:
         return None
-    cos_tol = np.cos(np.radians(cfg.plane_normal_tol_deg))
+    cos_tol = np.cos(np.radians(normal_tol_deg))
     best, best_score = None, -1.0
-    tri = rng.integers(0, n, size=(cfg.plane_ransac_iterations, 3))
+    tri = rng.integers(0, n, size=(iterations, 3))
     for i, j, k in tri:
         nrm = np.cross(points[j] - points[i], points[k] - points[i])
         norm = np.linalg.norm(nrm)
@@ -110,13 +123,13 @@ def _robust_plane(
         if abs(nrm @ guess) < cos_tol:
             continue
         dist = np.abs((points - points[i]) @ nrm)
-        score = float(np.sum(np.maximum(0.0, 1.0 - (dist / cfg.plane_ransac_band_m) ** 2)))
+        score = float(np.sum(np.maximum(0.0, 1.0 - (dist / band_m) ** 2)))
         if score > best_score:
             best, best_score = (nrm, points[i]), score
     if best is None:
         return None
     nrm, c = best
-    scale = cfg.plane_ransac_band_m
+    scale = band_m
     for _ in range(10):
         r = (points - c) @ nrm
         sigma = max(1.4826 * float(np.median(np.abs(r[np.abs(r) < 3.0 * scale]))), 1e-4)
