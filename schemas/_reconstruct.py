@@ -29,7 +29,9 @@ class PoseRefineStageConfig(StageConfig):
     min_track_points: int = Field(default=15, ge=3, description="A frame is refined only if it sees this many points.")
     max_correction_m: float = Field(default=0.15, gt=0, description="Larger corrections are rejected (frame kept), metres.")
     max_correction_deg: float = Field(default=8.0, gt=0, description="Larger rotation corrections are rejected, degrees.")
-    num_threads: int = Field(default=2, ge=1, description="CPU threads COLMAP and Ceres may use.")
+    num_threads: int = Field(
+        default=1, ge=1, description="CPU threads COLMAP and Ceres may use; 1 gives the same poses on every run."
+    )
 
 
 class ReconstructConfig(StageConfig):
