@@ -28,7 +28,13 @@ import time
 import numpy as np
 from _common import print_table, write_results
 
-from artitwin_core.joints import JointFitConfig, estimate_joint, joint_errors, random_part_joint, simulate_trajectories
+from artitwin_core.joints import (
+    JointFitConfig,
+    estimate_joint,
+    joint_errors,
+    random_part_joint,
+    simulate_trajectories,
+)
 from artitwin_core.joints._model import joint_motion
 
 N_FRAMES = 30

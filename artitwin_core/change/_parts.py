@@ -1012,7 +1012,7 @@ def _front_rectangle(
         band = p2[(p2[:, other] >= lo[other]) & (p2[:, other] <= hi[other])]
         bins = np.append(np.arange(lo[other], hi[other], 2 * spacing), hi[other])
 
-        def full_extent(a0: float, a1: float) -> bool:
+        def full_extent(a0: float, a1: float, band=band, axis=axis, other=other, bins=bins) -> bool:
             line = band[(band[:, axis] >= a0) & (band[:, axis] < a1), other]
             return len(line) > 0 and np.mean(np.histogram(line, bins=bins)[0] > 0) >= 0.8
 
