@@ -92,7 +92,7 @@ def sensor_model(checkpoint: GaussianCheckpoint) -> SensorModel | None:
     )
 
 
-@stage(name="refine_poses", version=2, config=PoseRefineStageConfig, output=CameraPoses)
+@stage(name="refine_poses", version=3, config=PoseRefineStageConfig, output=CameraPoses)
 def refine_capture_poses(capture: CaptureArtifact, config: PoseRefineStageConfig) -> CameraPoses:
     """Refined camera poses of the static recording, in its own (= the canonical) world frame.
 

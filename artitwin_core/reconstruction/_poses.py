@@ -151,7 +151,8 @@ def refine_poses(capture: Capture, config: PoseRefineConfig = PoseRefineConfig()
 
 def _camera_model(capture: Capture, distortion: np.ndarray | None) -> tuple[str, np.ndarray]:
     """COLMAP model name and ``[T, P]`` params per frame."""
-    k = np.asarray(capture.rgb_intrinsics, np.float64)
+    k = np.asarray(capture.rgb_intrinsics, np.float64).copy()
+    k[:, 2:4] += 0.5  # COLMAP puts pixel centres at +0.5, the capture's intrinsics at integers
     if distortion is not None:
         return "OPENCV", np.concatenate([k, np.tile(distortion, (len(k), 1))], axis=1)
     return "PINHOLE", k
@@ -285,7 +286,8 @@ class Tracks:
         points: ``[M, 3]`` world positions triangulated from the capture poses, metres.
         obs_frame: ``[K]`` frame index of each observation.
         obs_point: ``[K]`` point index of each observation.
-        obs_uv: ``[K, 2]`` keypoint position, pixels (COLMAP convention: pixel centres at +0.5).
+        obs_uv: ``[K, 2]`` keypoint position, pixels, with pixel centres at integers as the
+            capture's intrinsics (COLMAP's keypoints, which put them at +0.5, less 0.5).
     """
 
     points: np.ndarray
@@ -307,7 +309,7 @@ def _tracks(rec, names: list[str]) -> Tracks:
                 continue
             of.append(frame_of[el.image_id])
             op.append(j)
-            uv.append(rec.images[el.image_id].points2D[el.point2D_idx].xy)
+            uv.append(rec.images[el.image_id].points2D[el.point2D_idx].xy - 0.5)
     return Tracks(
         points=np.asarray(pts, np.float64).reshape(-1, 3),
         obs_frame=np.asarray(of, np.int64),
@@ -336,9 +338,9 @@ def _sensor_depth_at(capture: Capture, frames: np.ndarray, uv: np.ndarray) -> np
     _, h, w = capture.depth.shape
     rk = capture.rgb_intrinsics[frames]
     dk = capture.depth_intrinsics[frames]
-    # Continuous depth-pixel coordinates with pixel centres at integers.
-    ud = (uv[:, 0] - rk[:, 2]) / rk[:, 0] * dk[:, 0] + dk[:, 2] - 0.5
-    vd = (uv[:, 1] - rk[:, 3]) / rk[:, 1] * dk[:, 1] + dk[:, 3] - 0.5
+    # Continuous depth-pixel coordinates with pixel centres at integers, as ``uv``'s.
+    ud = (uv[:, 0] - rk[:, 2]) / rk[:, 0] * dk[:, 0] + dk[:, 2]
+    vd = (uv[:, 1] - rk[:, 3]) / rk[:, 1] * dk[:, 1] + dk[:, 3]
     ui, vi = np.floor(ud).astype(np.int64), np.floor(vd).astype(np.int64)
     out = np.full(len(uv), np.nan)
     ok = (ui >= 1) & (ui < w - 2) & (vi >= 1) & (vi < h - 2)

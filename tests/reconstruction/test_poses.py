@@ -86,3 +86,21 @@ def test_same_recording_gives_the_same_poses(textured):
     first = refine_poses(cap, PoseRefineConfig()).world_from_camera
     second = refine_poses(cap, PoseRefineConfig()).world_from_camera
     np.testing.assert_array_equal(first, second)
+
+
+def test_sensor_depth_is_looked_up_where_the_keypoint_is(textured):
+    # RGB keypoints and intrinsics put pixel centres at integers (COLMAP's +0.5 is taken off
+    # when its keypoints are read); on a depth map that is a ramp across the image, the depth
+    # read at an RGB position must be the ramp's value where that ray meets the depth image.
+    from artitwin_core.reconstruction._poses import _sensor_depth_at
+
+    cap = textured.static
+    t, h, w = cap.depth.shape
+    ramp = (1.0 + 0.01 * np.arange(w, dtype=np.float32))[None, None, :].repeat(h, 1).repeat(t, 0)
+    cap = dataclasses.replace(cap, depth=ramp, confidence=None)
+    rng = np.random.default_rng(0)
+    frames = rng.integers(0, t, 50)
+    rk, dk = cap.rgb_intrinsics[frames], cap.depth_intrinsics[frames]
+    uv = np.stack([rng.uniform(20, cap.rgb.shape[2] - 20, 50), rng.uniform(20, cap.rgb.shape[1] - 20, 50)], 1)
+    u_depth = (uv[:, 0] - rk[:, 2]) / rk[:, 0] * dk[:, 0] + dk[:, 2]
+    np.testing.assert_allclose(_sensor_depth_at(cap, frames, uv), 1.0 + 0.01 * u_depth, atol=1e-6)
