@@ -19,12 +19,14 @@ joint that moves the part as it moved); ``reg_at_pivot_mm`` is the registration'
 true pivot, which a fitted pivot inherits.
 
 Run: ``python bench/bench_pipeline_joints.py [--scenes door drawer ...] [--save-tracks DIR]
-[--cache DIR | --write-cache DIR]``; prints a table and writes ``bench/results/pipeline_joints.json``.
+[--cache DIR | --write-cache DIR] [--without-effects EFFECT ...]``; prints a table and writes ``bench/results/pipeline_joints.json``.
 ``--save-tracks`` keeps each part's trajectories with its true motion (``DIR/<scene>_part<k>.npz``)
 so that the joint fit can be studied offline without re-running registration, masks and
 tracking. ``--cache`` reads registration, masks and tracks from ``DIR/<scene>.pkl`` (keys
 ``canonical_from_session``, ``part``, ``hand``, ``score``, ``tracks``; ``label -> dict`` of
-``Trajectories`` fields; ``--write-cache`` writes them) and runs only the fit and the refinement.
+``Trajectories`` fields; ``--write-cache`` writes them) and runs only the fit and the refinement. ``--without-effects`` leaves synthetic effects
+(``artitwin_core.synth.EFFECTS``) out of every scene: an ablation of what each injected effect
+costs (sensor-effects without ``depth_bias pose_drift`` isolates its time offset and lens).
 """
 
 from __future__ import annotations
@@ -157,11 +159,25 @@ def _write_cache(name: str, up: dict, cache: Path) -> None:
     tmp.replace(cache / f"{name}.pkl")
 
 
+def scene_spec(name: str, without_effects: tuple[str, ...] = ()):
+    """The benchmark scene's spec with the synthetic effects ``without_effects`` left out (an
+    ablation: which injected effect costs how much). ``ValueError`` names an unknown effect."""
+    from dataclasses import replace
+
+    from artitwin_core.synth import EFFECTS
+
+    unknown = sorted(set(without_effects) - set(EFFECTS))
+    if unknown:
+        raise ValueError(f"unknown effect(s) {unknown}; the synthetic effects are {sorted(EFFECTS)}")
+    spec = BENCHMARK_SCENES[name]
+    return replace(spec, effects=tuple(e for e in spec.effects if e[0] not in without_effects))
+
+
 def bench_scene(
     name: str, save_tracks: Path | None = None, cache: Path | None = None, static_poses: str = "refined",
-    write_cache: Path | None = None,
+    write_cache: Path | None = None, without_effects: tuple[str, ...] = (),
 ) -> list[dict]:
-    scene = generate_scene(BENCHMARK_SCENES[name])
+    scene = generate_scene(scene_spec(name, without_effects))
     d, truth = scene.dynamic, scene.truth
     up = _cached_upstream(name, cache) if cache is not None else _pipeline_upstream(name, scene, static_poses)
     masks = up["masks"]
@@ -283,11 +299,18 @@ def main() -> None:
     )
     parser.add_argument("--static-poses", choices=["refined", "recorded", "true"], default="refined",
                         help="static poses the canonical TSDF is fused at (refined: as the pipeline)")
+    parser.add_argument("--without-effects", nargs="*", default=[], metavar="EFFECT",
+                        help="leave these synthetic effects (artitwin_core.synth.EFFECTS) out of every scene")
     args = parser.parse_args()
+    if args.cache and args.without_effects:
+        parser.error("--without-effects changes the recordings; it cannot reuse a --cache of the full scenes")
     cv2.setNumThreads(2)
     rows = []
     for name in args.scenes:
-        rows.extend(bench_scene(name, args.save_tracks, args.cache, args.static_poses, args.write_cache))
+        rows.extend(
+            bench_scene(name, args.save_tracks, args.cache, args.static_poses, args.write_cache,
+                        tuple(args.without_effects))
+        )
         print(f"{name}: done", flush=True)
     columns = [
         "scene",
@@ -329,6 +352,7 @@ def main() -> None:
             "states": repr(StateRefineConfig()),
             "cache": str(args.cache) if args.cache else None,
             "static_poses": args.static_poses,
+            "without_effects": list(args.without_effects),
         },
     )
     print(f"\nwrote {path}")
