@@ -16,7 +16,9 @@ tracks, and the seconds of the track, fit and refine stages. ``axis_vs_motion_de
 ``pivot_vs_motion_mm`` compare with the best 1-DoF joint for the true motion instead (the same
 as the truth on ideal joints; on non-ideal-joints the truth's nominal axis is 2-4 deg from any
 joint that moves the part as it moved); ``reg_at_pivot_mm`` is the registration's error at the
-true pivot, which a fitted pivot inherits.
+true pivot, which a fitted pivot inherits. ``axis_se_deg`` and ``pivot_se_mm`` are the joint's
+own standard errors (``Joint.axis_se_rad``, ``pivot_se_m``): an error several of them wide comes
+from what every frame shares (the registration, a sensor defect), not from the frames' scatter.
 
 Run: ``python bench/bench_pipeline_joints.py [--scenes door drawer ...] [--save-tracks DIR]
 [--cache DIR | --write-cache DIR] [--without-effects EFFECT ...]``; prints a table and writes ``bench/results/pipeline_joints.json``.
@@ -261,6 +263,8 @@ def bench_scene(
             type_ok=bool(e.type_correct),
             axis_deg=e.axis_angle_deg,
             pivot_mm=1e3 * e.pivot_to_line_m if rotational else float("nan"),
+            axis_se_deg=np.degrees(j.axis_se_rad) if j.axis_se_rad is not None else float("nan"),
+            pivot_se_mm=1e3 * j.pivot_se_m if j.pivot_se_m is not None else float("nan"),
             range_true=true_range,
             range_tracks=float(fit.joint.q_range[1] - fit.joint.q_range[0]) * scale,
             range_est=est_range,
@@ -320,6 +324,8 @@ def main() -> None:
         "type_ok",
         "axis_deg",
         "pivot_mm",
+        "axis_se_deg",
+        "pivot_se_mm",
         "axis_vs_motion_deg",
         "pivot_vs_motion_mm",
         "reg_at_pivot_mm",

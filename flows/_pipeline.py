@@ -173,6 +173,8 @@ def build_summary(
             "range": j.q_range.tolist(),
             "q": [_finite(float(v)) for v in j.q],
             "pitch": j.pitch,
+            "axis_se_rad": j.axis_se_rad,
+            "pivot_se_m": j.pivot_se_m,
         }
         for run in joint_runs[-1:]
         for j in store.get(run.key, JointSet).joints

@@ -122,7 +122,7 @@ class JointParams(Artifact):
     """One estimated joint in the canonical frame (mirrors ``artitwin_core.joints.Joint``)."""
 
     kind = "joint"
-    schema_version = 1
+    schema_version = 2
 
     joint_type: str = Field(description="'revolute', 'prismatic', 'screw' or 'fixed'.")
     axis: Array("float64", "3") = Field(description="Unit axis direction in the canonical frame, [3].")
@@ -136,6 +136,14 @@ class JointParams(Artifact):
     )
     confidence: Array("float64", "T") = Field(description="Per-frame confidence of q in [0, 1], [T].")
     pitch: float = Field(default=0.0, description="Screw joints: axial translation per radian, metres/radian; 0 otherwise.")
+    axis_se_rad: float | None = Field(
+        default=None,
+        description="Standard error of the axis direction, radians, from the frames' scatter about the fit; None = not estimated.",
+    )
+    pivot_se_m: float | None = Field(
+        default=None,
+        description="Standard error of the axis line's position across the axis, metres (worse direction); None = not estimated.",
+    )
     name: str = Field(default="joint_0", description="Joint name (sanitised for URDF/MJCF on export).")
 
 

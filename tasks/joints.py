@@ -41,7 +41,7 @@ def _subset(traj: Trajectories, keep: np.ndarray) -> Trajectories:
     return Trajectories(traj.points_in_world[:, keep], traj.pixels[:, keep], traj.valid[:, keep], traj.query_frame)
 
 
-@stage(name="fit_joints", version=6, config=JointConfig, output=JointSet)
+@stage(name="fit_joints", version=7, config=JointConfig, output=JointSet)
 def fit_joints(trajectories: TrajectoriesArtifact, config: JointConfig) -> JointSet:
     """Fit a joint to each part's tracks; the model-selection scores go in ``selection``."""
     traj = to_core(Trajectories, trajectories)
@@ -57,7 +57,7 @@ def fit_joints(trajectories: TrajectoriesArtifact, config: JointConfig) -> Joint
     return JointSet(joints=joints, selection=selection)
 
 
-@stage(name="joint_states", version=2, config=JointStateConfig, output=JointSet)
+@stage(name="joint_states", version=3, config=JointStateConfig, output=JointSet)
 def refine_states(
     joints: JointSet,
     dynamic: CaptureArtifact,

@@ -337,6 +337,8 @@ def refine_joint_states(
         q=np.where(fit.fitted, fit.q, refined.q),
         residual=np.where(fit.fitted, fit.residual_m, refined.residual),
         confidence=conf,
+        axis_se_rad=fit.axis_se_rad,
+        pivot_se_m=fit.pivot_se_m,
     )
     return _refit_states(moved, lifted, cams, cfg)
 

@@ -30,6 +30,13 @@ class Joint:
             their joint-predicted positions (NaN where the frame had no valid tracks).
         confidence: ``[T]`` float64 in [0, 1], per-frame confidence of ``q``.
         pitch: metres per radian of axial translation (screw joints only, else 0).
+        axis_se_rad: standard error of the axis direction (radians), or None where the fit did
+            not estimate it. Revolute joints get it from their frame-level fit, with each frame
+            one sample (an error shared by a frame's tracks, such as the recording's pose
+            error there, counts once), or from the face-plane line fit where that replaced the
+            line (``refine_joint_states``).
+        pivot_se_m: standard error of the axis line's position across the axis (metres, its
+            worse direction), or None; as ``axis_se_rad``.
     """
 
     joint_type: str
@@ -40,3 +47,5 @@ class Joint:
     residual: np.ndarray
     confidence: np.ndarray
     pitch: float = 0.0
+    axis_se_rad: float | None = None
+    pivot_se_m: float | None = None

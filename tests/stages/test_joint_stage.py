@@ -34,6 +34,19 @@ def test_two_parts_get_their_own_joints():
         # 1 mm noise, 150 tracks, 20 frames: the unit tests of the estimator see < 0.2 deg here
         assert err.axis_angle_deg < 0.5
         assert "bic_revolute" in out.selection[est.name]
+    # The revolute's line carries its standard errors into the artifact (and through the store).
+    door, drawer = out.joints
+    assert door.joint_type == "revolute" and 0 < door.pivot_se_m < 0.01 and 0 < door.axis_se_rad < np.radians(0.5)
+    assert drawer.pivot_se_m is None
+    import zarr
+    from zarr.storage import MemoryStore
+
+    from schemas import JointSet
+
+    group = zarr.open_group(MemoryStore(), mode="w")
+    out.to_zarr(group)
+    back = JointSet.from_zarr(group).joints
+    assert back[0].pivot_se_m == door.pivot_se_m and back[1].pivot_se_m is None
 
 
 def test_joint_states_stage_refits_the_held_door_state():
