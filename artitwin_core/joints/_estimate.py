@@ -664,16 +664,11 @@ def _slide_along_face(joint: Joint, points: np.ndarray, rigid: np.ndarray, cfg: 
     and keeps the tracks' direction. Needs a face: ``face_min_fraction`` of ``points [N, 3]``
     (the closed part's inliers) on one plane whose normal is within ``face_max_angle_rad`` of
     ``a``. ``q`` is rescaled to the travel along the new direction; ``residual`` and
-    ``confidence`` stay those of the tracks' fit."""
+    ``confidence`` stay those of the tracks' fit. ``axis_se_rad`` is set either way: the
+    tracks' slope standard error (the frames' scatter), or the fused one; with
+    ``slide_along_face`` off only the former."""
     a = np.asarray(joint.axis, dtype=np.float64)
     a = a / np.linalg.norm(a)
-    plane = robust_plane(
-        points, a, np.random.default_rng(cfg.seed), min_points=20,
-        normal_tol_deg=float(np.degrees(cfg.face_max_angle_rad)), iterations=200, band_m=0.01,
-    )
-    if plane is None or plane.fraction < cfg.face_min_fraction:
-        return joint
-    n = plane.normal
     q = np.asarray(joint.q, dtype=np.float64)
     has = np.isfinite(rigid[:, 0, 0]) & np.isfinite(q)
     if has.sum() < 4 or np.ptp(q[has]) <= 0:
@@ -682,24 +677,42 @@ def _slide_along_face(joint: Joint, points: np.ndarray, rigid: np.ndarray, cfg: 
     disp = np.einsum("tij,j->ti", rigid[has, :3, :3], centroid) + rigid[has, :3, 3] - centroid
     design = np.stack([np.ones(has.sum()), q[has]], 1)
     inv = np.linalg.inv(design.T @ design)
-    on_face = points[np.abs((points - plane.centroid) @ n) < 2.5 * plane.sigma] - plane.centroid
-    chi2, fused = 0.0, []
+    slopes, var_tracks = [], []
     for e in _tangent_basis(a):
         across = disp @ e
         coef = inv @ design.T @ across
         res = across - design @ coef
-        var_tracks = max(float(res @ res) / max(has.sum() - 2, 1), 1e-12) * inv[1, 1]
+        slopes.append(float(coef[1]))
+        var_tracks.append(max(float(res @ res) / max(has.sum() - 2, 1), 1e-12) * inv[1, 1])
+    # The direction's standard error from the frames' scatter across it (the worse axis).
+    joint = replace(joint, axis_se_rad=float(np.sqrt(max(var_tracks))))
+    if not cfg.slide_along_face:
+        return joint
+    plane = robust_plane(
+        points, a, np.random.default_rng(cfg.seed), min_points=20,
+        normal_tol_deg=float(np.degrees(cfg.face_max_angle_rad)), iterations=200, band_m=0.01,
+    )
+    if plane is None or plane.fraction < cfg.face_min_fraction:
+        return joint
+    n = plane.normal
+    on_face = points[np.abs((points - plane.centroid) @ n) < 2.5 * plane.sigma] - plane.centroid
+    chi2, fused, var_fused = 0.0, [], []
+    for e, slope, var_t in zip(_tangent_basis(a), slopes, var_tracks, strict=True):
         # A plane's normal tilts towards e by sigma / sqrt(sum of squared extents along e).
         var_face = plane.sigma**2 / max(float(np.sum((on_face @ e) ** 2)), 1e-12) / float(n @ a) ** 2
         slope_face = float(n @ e) / float(n @ a)
-        chi2 += (slope_face - coef[1]) ** 2 / (var_tracks + cfg.slide_floor_rad**2 + var_face)
-        fused.append((coef[1] / var_tracks + slope_face / var_face) / (1.0 / var_tracks + 1.0 / var_face))
+        chi2 += (slope_face - slope) ** 2 / (var_t + cfg.slide_floor_rad**2 + var_face)
+        fused.append((slope / var_t + slope_face / var_face) / (1.0 / var_t + 1.0 / var_face))
+        var_fused.append(1.0 / (1.0 / var_t + 1.0 / var_face))
     if chi2 > cfg.face_chi2:
         return joint
     direction = a + sum(s * e for s, e in zip(fused, _tangent_basis(a), strict=True))
     # Displacement q * direction per unit of q along a: the travel along the new unit axis.
     scale = float(np.linalg.norm(direction))
-    return replace(joint, axis=direction / scale, q=q * scale, q_range=np.asarray(joint.q_range) * scale)
+    return replace(
+        joint, axis=direction / scale, q=q * scale, q_range=np.asarray(joint.q_range) * scale,
+        axis_se_rad=float(np.sqrt(max(var_fused))),
+    )
 
 
 def _n_params(kind: str, n_frames: int) -> int:
@@ -1102,7 +1115,7 @@ def estimate_joint(
     if hyps["fixed"].bic <= hyps[best].bic or motion < cfg.min_motion_m:
         best = "fixed"
     fit_c, joint_c, points_c = finals[best]
-    if best == "prismatic" and cfg.slide_along_face:
+    if best == "prismatic":
         joint_c = _slide_along_face(joint_c, points_c[fit_c.track_ok], rigid, cfg)
         hyps["prismatic"] = replace(hyps["prismatic"], joint=joint_c)
     closed = np.where(fit_c.track_ok[:, None], points_c, np.nan)

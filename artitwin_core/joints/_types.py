@@ -34,9 +34,11 @@ class Joint:
             not estimate it. Revolute joints get it from their frame-level fit, with each frame
             one sample (an error shared by a frame's tracks, such as the recording's pose
             error there, counts once), or from the face-plane line fit where that replaced the
-            line (``refine_joint_states``).
+            line (``refine_joint_states``); prismatic ones from the frames' displacements across
+            the slide, or from that fused with the part's face normal. Errors every frame
+            shares (the registration, a sensor defect) are not in it.
         pivot_se_m: standard error of the axis line's position across the axis (metres, its
-            worse direction), or None; as ``axis_se_rad``.
+            worse direction), or None (prismatic and fixed joints); as ``axis_se_rad``.
     """
 
     joint_type: str
