@@ -36,7 +36,9 @@ class Joint:
             error there, counts once), or from the face-plane line fit where that replaced the
             line (``refine_joint_states``); prismatic ones from the frames' displacements across
             the slide, or from that fused with the part's face normal. Errors every frame
-            shares (the registration, a sensor defect) are not in it.
+            shares (the registration, a sensor defect, a depth error pattern that repeats from
+            frame to frame) are not in it: from tracks alone it is a lower bound
+            (docs/accuracy.md has the measured coverage).
         pivot_se_m: standard error of the axis line's position across the axis (metres, its
             worse direction), or None (prismatic and fixed joints); as ``axis_se_rad``.
     """
