@@ -57,7 +57,7 @@ def fit_joints(trajectories: TrajectoriesArtifact, config: JointConfig) -> Joint
     return JointSet(joints=joints, selection=selection)
 
 
-@stage(name="joint_states", version=3, config=JointStateConfig, output=JointSet)
+@stage(name="joint_states", version=4, config=JointStateConfig, output=JointSet)
 def refine_states(
     joints: JointSet,
     dynamic: CaptureArtifact,

@@ -44,8 +44,9 @@ def lift_frame(
         k = 2 * cfg.mask_erode_px + 1
         m = cv2.erode(m, np.ones((k, k), np.uint8))
     hand = np.asarray(masks.hand[t]).astype(np.uint8)
-    if cfg.hand_dilate_px > 0 and hand.any():
-        k = 2 * cfg.hand_dilate_px + 1
+    grow = int(np.ceil(cfg.hand_dilate_depth_px * hand.shape[1] / np.asarray(capture.depth[t]).shape[1]))
+    if grow > 0 and hand.any():
+        k = 2 * grow + 1
         hand = cv2.dilate(hand, np.ones((k, k), np.uint8))
     v, u = np.nonzero(m.astype(bool) & ~hand.astype(bool))
     dense = cfg.max_points * (cfg.normal_oversample if cfg.normal_gate_deg < 90.0 else 1)
