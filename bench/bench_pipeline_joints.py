@@ -17,8 +17,9 @@ tracks, and the seconds of the track, fit and refine stages. ``axis_vs_motion_de
 as the truth on ideal joints; on non-ideal-joints the truth's nominal axis is 2-4 deg from any
 joint that moves the part as it moved); ``reg_at_pivot_mm`` is the registration's error at the
 true pivot, which a fitted pivot inherits. ``axis_se_deg`` and ``pivot_se_mm`` are the joint's
-own standard errors (``Joint.axis_se_rad``, ``pivot_se_m``): an error several of them wide comes
-from what every frame shares (the registration, a sensor defect), not from the frames' scatter.
+own standard errors (``Joint.axis_se_rad``, ``pivot_se_m``) with the registration's added, as the
+``joint_states`` stage reports them (a ``--cache`` written before the registration had a
+covariance leaves it out).
 
 Run: ``python bench/bench_pipeline_joints.py [--scenes door drawer ...] [--save-tracks DIR]
 [--cache DIR | --write-cache DIR] [--without-effects EFFECT ...]``; prints a table and writes ``bench/results/pipeline_joints.json``.
@@ -53,6 +54,7 @@ from artitwin_core.joints import (  # noqa: E402
     estimate_joint,
     joint_errors,
     refine_joint_states,
+    with_registration_error,
 )
 from artitwin_core.masks import MaskSequence  # noqa: E402
 from artitwin_core.reconstruction import PoseRefineConfig, refine_poses  # noqa: E402
@@ -114,6 +116,7 @@ def _pipeline_upstream(name: str, scene, static_poses: str = "refined") -> dict:
     t_masks = time.perf_counter() - t0
     return {
         "canonical_from_session": reg.canonical_from_session,
+        "registration_covariance": reg.covariance,
         "masks": seg.masks,
         "register_masks_s": t_masks,
         "tracks": {},
@@ -135,6 +138,7 @@ def _cached_upstream(name: str, cache: Path) -> dict:
     }
     return {
         "canonical_from_session": c["canonical_from_session"],
+        "registration_covariance": c.get("registration_covariance"),
         "masks": MaskSequence(part=c["part"], hand=c["hand"], score=c["score"]),
         "register_masks_s": float("nan"),
         "tracks": tracks,
@@ -146,6 +150,7 @@ def _write_cache(name: str, up: dict, cache: Path) -> None:
     cache.mkdir(parents=True, exist_ok=True)
     payload = {
         "canonical_from_session": up["canonical_from_session"],
+        "registration_covariance": up["registration_covariance"],
         "part": up["masks"].part,
         "hand": up["masks"].hand,
         "score": up["masks"].score,
@@ -241,6 +246,7 @@ def bench_scene(
         row["fit_s"] = time.perf_counter() - t0
         t0 = time.perf_counter()
         j = refine_joint_states(fit.joint, d, masks, label, up["canonical_from_session"], StateRefineConfig())
+        j = with_registration_error(j, up["registration_covariance"])  # as the joint_states stage does
         row["refine_s"] = time.perf_counter() - t0
         e = joint_errors(j, joint_true)
         rotational = joint_true.joint_type in ("revolute", "screw")

@@ -5,7 +5,14 @@ from __future__ import annotations
 import numpy as np
 
 from artitwin_core.capture import Capture
-from artitwin_core.joints import Joint, JointFitConfig, StateRefineConfig, estimate_joint, refine_joint_states
+from artitwin_core.joints import (
+    Joint,
+    JointFitConfig,
+    StateRefineConfig,
+    estimate_joint,
+    refine_joint_states,
+    with_registration_error,
+)
 from artitwin_core.masks import MaskSequence
 from artitwin_core.tracking import Trajectories
 from schemas import (
@@ -57,7 +64,7 @@ def fit_joints(trajectories: TrajectoriesArtifact, config: JointConfig) -> Joint
     return JointSet(joints=joints, selection=selection)
 
 
-@stage(name="joint_states", version=4, config=JointStateConfig, output=JointSet)
+@stage(name="joint_states", version=5, config=JointStateConfig, output=JointSet)
 def refine_states(
     joints: JointSet,
     dynamic: CaptureArtifact,
@@ -73,7 +80,12 @@ def refine_states(
     frames' ``q`` the depth fit replaced.
     """
     if not config.refine_from_depth:
-        return joints
+        # The registration's error is still every joint's: it joins their standard errors.
+        out = [
+            to_artifact(JointParams, with_registration_error(to_core(Joint, p), registration.covariance), name=p.name)
+            for p in joints.joints
+        ]
+        return JointSet(joints=out, selection=joints.selection)
     capture = to_core(Capture, dynamic)
     seq = to_core(MaskSequence, masks)
     labels = {int(v) for v in np.unique(seq.part) if v > 0}
@@ -90,6 +102,7 @@ def refine_states(
             joint = refined
         else:
             changed = 0
+        joint = with_registration_error(joint, registration.covariance)
         out.append(to_artifact(JointParams, joint, name=params.name))
         selection.setdefault(params.name, {})["state_frames_changed"] = float(changed)
     return JointSet(joints=out, selection=selection)

@@ -12,6 +12,7 @@ from artitwin_core.joints._model import joint_transforms
 from artitwin_core.joints._simulate import random_part_joint, simulate_trajectories
 from artitwin_core.joints._states import StateRefineConfig, refine_joint_states
 from artitwin_core.joints._types import JOINT_TYPES, Joint
+from artitwin_core.joints._uncertainty import with_registration_error
 
 __all__ = [
     "JOINT_TYPES",
@@ -30,4 +31,5 @@ __all__ = [
     "random_part_joint",
     "refine_joint_states",
     "simulate_trajectories",
+    "with_registration_error",
 ]

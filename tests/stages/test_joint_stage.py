@@ -83,3 +83,11 @@ def test_joint_states_stage_refits_the_held_door_state():
     assert out.selection["joint_0"]["bic_revolute"] == 1.0
     same = refine_states(**inputs, config=JointStateConfig(refine_from_depth=False))
     np.testing.assert_array_equal(same.joints[0].q, held.q)
+    # The registration's covariance joins the joint's standard errors (2 mm per axis here), with
+    # or without the depth refit.
+    fitted = replace(held, axis_se_rad=0.001, pivot_se_m=0.001)
+    inputs["joints"] = JointSet(joints=[to_artifact(JointParams, fitted, name="joint_0")], selection={})
+    inputs["registration"] = inputs["registration"].model_copy(update={"covariance": np.diag([0.0] * 3 + [0.002**2] * 3)})
+    for cfg in (JointStateConfig(refine_line=False), JointStateConfig(refine_from_depth=False)):
+        joint = refine_states(**inputs, config=cfg).joints[0]
+        assert np.isclose(joint.pivot_se_m, np.hypot(0.001, 0.002)) and np.isclose(joint.axis_se_rad, 0.001)
