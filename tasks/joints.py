@@ -48,7 +48,7 @@ def _subset(traj: Trajectories, keep: np.ndarray) -> Trajectories:
     return Trajectories(traj.points_in_world[:, keep], traj.pixels[:, keep], traj.valid[:, keep], traj.query_frame)
 
 
-@stage(name="fit_joints", version=7, config=JointConfig, output=JointSet)
+@stage(name="fit_joints", version=8, config=JointConfig, output=JointSet)
 def fit_joints(trajectories: TrajectoriesArtifact, config: JointConfig) -> JointSet:
     """Fit a joint to each part's tracks; the model-selection scores go in ``selection``."""
     traj = to_core(Trajectories, trajectories)
