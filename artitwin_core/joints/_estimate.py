@@ -678,8 +678,10 @@ def _slide_along_face(
     sees; the prismatic model's latent ``points`` are smeared by the turn (their face came out
     0.6 deg off). So a tilting slide takes its face from ``points_ref [M, 3]``, the reference
     frame's own observations, and slides along that normal if the turn explains the tracks'
-    disagreement with it (``_tilt_explains``); else it keeps the tracks' direction. ``q`` is rescaled to the travel along the new direction; ``residual`` and
-    ``confidence`` stay those of the tracks' fit. ``axis_se_rad`` is set either way: the
+    disagreement with it (``_tilt_explains``); else it keeps the tracks' direction.
+
+    ``q`` is rescaled to the travel along the new direction; ``residual`` and ``confidence``
+    stay those of the tracks' fit. ``axis_se_rad`` is set either way: the
     tracks' slope standard error (the frames' scatter), or the fused one; with
     ``slide_along_face`` off only the former."""
     a = np.asarray(joint.axis, dtype=np.float64)
