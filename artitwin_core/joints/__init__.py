@@ -11,6 +11,7 @@ from artitwin_core.joints._metrics import (
 from artitwin_core.joints._model import joint_transforms
 from artitwin_core.joints._simulate import random_part_joint, simulate_trajectories
 from artitwin_core.joints._states import StateRefineConfig, refine_joint_states
+from artitwin_core.joints._timing import to_rgb_clock
 from artitwin_core.joints._types import JOINT_TYPES, Joint
 from artitwin_core.joints._uncertainty import with_registration_error
 
@@ -31,5 +32,6 @@ __all__ = [
     "random_part_joint",
     "refine_joint_states",
     "simulate_trajectories",
+    "to_rgb_clock",
     "with_registration_error",
 ]
