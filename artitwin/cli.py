@@ -106,8 +106,9 @@ def run(
     prefect: Annotated[bool, typer.Option("--prefect/--no-prefect", help="Run as a Prefect flow (default).")] = True,
     effect: Annotated[
         list[str] | None,
-        typer.Option("--effect", help="Model this physical effect (repeatable), e.g. exposure_white_balance: "
-                     "`artitwin diagnose` names the ones a run needs. Cached stages upstream of it are reused."),
+        typer.Option("--effect", help="Model this physical effect (repeatable), e.g. exposure_white_balance, "
+                     "or time_offset=SECONDS with the lag the diagnosis fitted: `artitwin diagnose` names the ones "
+                     "a run needs. Cached stages upstream of it are reused."),
     ] = None,
     sam2: Annotated[
         Path | None,
@@ -175,8 +176,7 @@ def diagnose(
     top: Annotated[int, typer.Option("--top", help="Show this many ranked effects.")] = 12,
 ) -> None:
     """Where the twin fails against the measurement, and which physical effect it is missing."""
-    from flows._runs import diagnosis_of, read_summary
-    from schemas._configs import EFFECT_STAGES
+    from flows._runs import diagnosis_of, read_summary, rerun_effects
 
     try:
         where, summary = read_summary(run_dir)
@@ -197,9 +197,7 @@ def diagnose(
     Console().print(table)
     for line in report.conclusion:
         Console().print(f"- {line}")
-    wanted = sorted({e.split("/", 1)[-1] for e in report.enabled})
-    can = [e for e in wanted if e in EFFECT_STAGES and e not in modelled]
-    cannot = [e for e in wanted if e not in EFFECT_STAGES]
+    can, cannot = rerun_effects(report, modelled)
     scene = summary.get("scene", "SCENE")
     if can:
         flags = " ".join(f"--effect {e}" for e in sorted(set(can) | set(modelled)))

@@ -15,9 +15,9 @@ from artitwin_core import InputError, TransientError
 from flows._env import default_store_url
 from flows._pipeline import build_summary, scene_pipeline, write_exports, write_summary
 from flows._runner import StageRun, run_stage
+from flows._runs import rerun_effects
 from infra.store import ArtifactStore, StoreError
 from schemas import DiagnosisReport, PipelineConfig, StageConfig, StageReport
-from schemas._configs import EFFECT_STAGES
 from tasks import STAGES
 
 # Errors worth retrying: storage hiccups and lock contention. Bad input and bugs are not.
@@ -65,8 +65,7 @@ def diagnosis_markdown(report: DiagnosisReport, top: int = 8) -> list[str]:
     for i, f in enumerate(report.findings[:top]):
         lines.append(f"| {i + 1} | {f.scope} | {f.name} | {f.target} | {100 * f.explained_frac:.0f}% | "
                      f"{'yes' if f.significant else 'no'} | {'yes' if f.enabled else ''} |")
-    wanted = sorted({e.split("/", 1)[-1] for e in report.enabled})
-    modelled = [e for e in wanted if e in EFFECT_STAGES]
+    modelled, _ = rerun_effects(report, [])
     if modelled:
         lines += ["", "Rerun with the effect modelled: `artitwin run SCENE " + " ".join(f"--effect {e}" for e in modelled) + "`"]
     return lines

@@ -98,6 +98,15 @@ class JointStateConfig(StageConfig):
         description="Also fit a revolute slab's (a door's) axis and pivot to the planes its faces show in depth, "
         "where that fit's standard errors are small: tracks on a weakly textured door leave its pivot ~1 cm off.",
     )
+    rgb_time_offset_s: float = Field(
+        default=0.0,
+        ge=-0.5,
+        le=0.5,
+        description="Seconds by which the dynamic recording's depth maps and poses are recorded after its RGB "
+        "exposures (the diagnosis's time_offset 'seconds'; the effect time_offset). Every state is read from a "
+        "frame's depth and pose, so it is moved back to the RGB exposure's time, where the twin is rendered "
+        "(artitwin_core.joints.to_rgb_clock). 0: the streams are in sync.",
+    )
 
 
 # The stage whose forward model gains each catalog effect when a user enables it
@@ -107,6 +116,12 @@ EFFECT_STAGES: dict[str, str] = {
     "vignetting": "reconstruct",
     "depth_scale_offset": "reconstruct",
     "screw_joint": "fit_joints",
+    "time_offset": "joint_states",
+}
+# Effects modelled with a value the diagnosis fits (``NAME=VALUE`` in ``with_effects``): the
+# parameter it reports, and the stage config field the value sets.
+EFFECT_VALUES: dict[str, tuple[str, str]] = {
+    "time_offset": ("seconds", "rgb_time_offset_s"),
 }
 
 
@@ -136,8 +151,28 @@ class PipelineConfig(StageConfig):
     def with_effects(self, names) -> PipelineConfig:
         """This config with the physical effects ``names`` (from the diagnosis catalog) enabled in
         the stages that model them (``EFFECT_STAGES``). Only those stages' configs change, so a rerun
-        reuses every cached artifact upstream of them. ``ValueError`` names an effect no stage models."""
-        names = list(dict.fromkeys(names))
+        reuses every cached artifact upstream of them. An effect the stage cannot fit itself takes
+        the value the diagnosis fitted as ``NAME=VALUE`` (``EFFECT_VALUES``: ``time_offset=0.033``).
+        ``ValueError`` names an effect no stage models, or a value that is missing or not a number."""
+        values: dict[str, float] = {}
+        plain = []
+        for entry in names:
+            name, sep, raw = str(entry).partition("=")
+            if name in EFFECT_VALUES:
+                param = EFFECT_VALUES[name][0]
+                if not sep:
+                    raise ValueError(
+                        f"the effect {name} needs its {param}, as the diagnosis reports it: {name}=VALUE "
+                        f"(e.g. {name}=0.033)"
+                    )
+                try:
+                    values[name] = float(raw)
+                except ValueError:
+                    raise ValueError(f"{entry!r}: the {param} of {name} must be a number (e.g. {name}=0.033)") from None
+            elif sep:
+                raise ValueError(f"{entry!r}: only {sorted(EFFECT_VALUES)} take a value; give {name} by name alone")
+            plain.append(name)
+        names = list(dict.fromkeys(plain))
         unknown = [n for n in names if n not in EFFECT_STAGES]
         if unknown:
             raise ValueError(
@@ -151,6 +186,10 @@ class PipelineConfig(StageConfig):
             update["reconstruct"] = self.reconstruct.model_copy(update={"sensor_effects": merged})
         if "screw_joint" in names:
             update["fit_joints"] = self.fit_joints.model_copy(update={"model_screw": True})
+        if "time_offset" in values:
+            update["joint_states"] = self.joint_states.model_validate(
+                {**self.joint_states.model_dump(), "rgb_time_offset_s": values["time_offset"]}
+            )
         return self.model_copy(update=update)
 
     def enabled_effects(self) -> list[str]:
@@ -158,6 +197,8 @@ class PipelineConfig(StageConfig):
         out = list(self.reconstruct.sensor_effects)
         if self.fit_joints.model_screw:
             out.append("screw_joint")
+        if self.joint_states.rgb_time_offset_s != 0.0:
+            out.append(f"time_offset={self.joint_states.rgb_time_offset_s:g}")
         return sorted(out)
 
     @classmethod

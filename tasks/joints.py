@@ -11,6 +11,7 @@ from artitwin_core.joints import (
     StateRefineConfig,
     estimate_joint,
     refine_joint_states,
+    to_rgb_clock,
     with_registration_error,
 )
 from artitwin_core.masks import MaskSequence
@@ -64,7 +65,7 @@ def fit_joints(trajectories: TrajectoriesArtifact, config: JointConfig) -> Joint
     return JointSet(joints=joints, selection=selection)
 
 
-@stage(name="joint_states", version=5, config=JointStateConfig, output=JointSet)
+@stage(name="joint_states", version=6, config=JointStateConfig, output=JointSet)
 def refine_states(
     joints: JointSet,
     dynamic: CaptureArtifact,
@@ -77,16 +78,21 @@ def refine_states(
 
     ``joint_<k>`` moves the part labelled ``k + 1`` in the masks (as ``track_parts`` and
     ``fit_joints`` number them). ``selection`` gains ``state_frames_changed`` per joint: how many
-    frames' ``q`` the depth fit replaced.
+    frames' ``q`` the depth fit replaced. With ``config.rgb_time_offset_s`` (the effect
+    ``time_offset``) every joint's states are then moved to its frames' RGB times
+    (``to_rgb_clock``).
     """
-    if not config.refine_from_depth:
-        # The registration's error is still every joint's: it joins their standard errors.
-        out = [
-            to_artifact(JointParams, with_registration_error(to_core(Joint, p), registration.covariance), name=p.name)
-            for p in joints.joints
-        ]
-        return JointSet(joints=out, selection=joints.selection)
     capture = to_core(Capture, dynamic)
+
+    def finish(joint: Joint) -> Joint:
+        # The registration's error is every joint's: it joins their standard errors.
+        if config.rgb_time_offset_s != 0.0:
+            joint = to_rgb_clock(joint, capture.timestamps, config.rgb_time_offset_s)
+        return with_registration_error(joint, registration.covariance)
+
+    if not config.refine_from_depth:
+        out = [to_artifact(JointParams, finish(to_core(Joint, p)), name=p.name) for p in joints.joints]
+        return JointSet(joints=out, selection=joints.selection)
     seq = to_core(MaskSequence, masks)
     labels = {int(v) for v in np.unique(seq.part) if v > 0}
     out, selection = [], {name: dict(scores) for name, scores in joints.selection.items()}
@@ -102,7 +108,6 @@ def refine_states(
             joint = refined
         else:
             changed = 0
-        joint = with_registration_error(joint, registration.covariance)
-        out.append(to_artifact(JointParams, joint, name=params.name))
+        out.append(to_artifact(JointParams, finish(joint), name=params.name))
         selection.setdefault(params.name, {})["state_frames_changed"] = float(changed)
     return JointSet(joints=out, selection=selection)

@@ -46,3 +46,35 @@ def test_prefect_ui_summary_lists_the_ranking_and_the_rerun_command():
     assert "--effect exposure_white_balance" in text
     assert "--effect axis_tilt" not in text  # no stage models it: not offered as a rerun
     assert "exposure explains 90%" in text
+
+
+def test_time_offset_takes_the_diagnosed_seconds():
+    base = PipelineConfig.preset("quick")
+    cfg = base.with_effects(["time_offset=0.033", "screw_joint"])
+    assert cfg.joint_states.rgb_time_offset_s == 0.033
+    assert cfg.enabled_effects() == ["screw_joint", "time_offset=0.033"]
+    assert cfg.with_effects(cfg.enabled_effects()) == cfg  # the inverse round-trips
+    for name in ("registration", "part_masks", "track", "reconstruct"):
+        assert getattr(cfg, name) == getattr(base, name), name
+    with pytest.raises(ValueError, match="needs its seconds.*time_offset=VALUE"):
+        base.with_effects(["time_offset"])
+    with pytest.raises(ValueError, match="must be a number"):
+        base.with_effects(["time_offset=soon"])
+    with pytest.raises(ValueError, match="by name alone"):
+        base.with_effects(["vignetting=0.3"])
+    with pytest.raises(ValueError):  # the stage config bounds the lag (half a second)
+        base.with_effects(["time_offset=2"])
+
+
+def test_the_rerun_command_carries_the_fitted_time_offset():
+    from flows._runs import rerun_effects
+    from flows.scene import diagnosis_markdown
+
+    lag = EffectFinding(name="time_offset", scope="dynamic recording", target="photometric", explained_frac=0.4,
+                        energy_before=1.0, energy_after=0.6, significant=True, enabled=True,
+                        params={"seconds": 0.0331, "median_speed_px_per_s": 40.0})
+    report = DiagnosisReport(findings=[lag], enabled=["dynamic recording/time_offset"], conclusion=[])
+    assert rerun_effects(report, []) == (["time_offset=0.0331"], [])
+    assert rerun_effects(report, ["time_offset=0.0331"]) == ([], [])  # already modelled
+    assert "--effect time_offset=0.0331" in "\n".join(diagnosis_markdown(report))
+    PipelineConfig().with_effects(rerun_effects(report, [])[0])  # what it offers is accepted

@@ -91,3 +91,9 @@ def test_joint_states_stage_refits_the_held_door_state():
     for cfg in (JointStateConfig(refine_line=False), JointStateConfig(refine_from_depth=False)):
         joint = refine_states(**inputs, config=cfg).joints[0]
         assert np.isclose(joint.pivot_se_m, np.hypot(0.001, 0.002)) and np.isclose(joint.axis_se_rad, 0.001)
+    # The effect time_offset moves every state to its frame's RGB time (here without the refit):
+    # states read 20 ms late are interpolated back between the frames.
+    late = refine_states(**inputs, config=JointStateConfig(refine_from_depth=False, rgb_time_offset_s=0.02)).joints[0]
+    ts = scene.dynamic.timestamps
+    np.testing.assert_allclose(late.q, np.interp(ts, ts + 0.02, held.q))
+    assert np.abs(late.q - held.q).max() > np.radians(0.5)
