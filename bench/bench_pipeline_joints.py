@@ -30,6 +30,9 @@ tracking. ``--cache`` reads registration, masks and tracks from ``DIR/<scene>.pk
 ``Trajectories`` fields; ``--write-cache`` writes them) and runs only the fit and the refinement. ``--without-effects`` leaves synthetic effects
 (``artitwin_core.synth.EFFECTS``) out of every scene: an ablation of what each injected effect
 costs (sensor-effects without ``depth_bias pose_drift`` isolates its time offset and lens).
+``--add-effects time_offset:seconds=0.033`` adds effects to every scene instead.
+``--rgb-time-offset SECONDS`` models the effect ``time_offset`` (``JointStateConfig.rgb_time_offset_s``,
+the lag the diagnosis fits): the states are moved to the RGB exposures' times.
 """
 
 from __future__ import annotations
@@ -54,6 +57,7 @@ from artitwin_core.joints import (  # noqa: E402
     estimate_joint,
     joint_errors,
     refine_joint_states,
+    to_rgb_clock,
     with_registration_error,
 )
 from artitwin_core.masks import MaskSequence  # noqa: E402
@@ -166,25 +170,45 @@ def _write_cache(name: str, up: dict, cache: Path) -> None:
     tmp.replace(cache / f"{name}.pkl")
 
 
-def scene_spec(name: str, without_effects: tuple[str, ...] = ()):
+def parse_effect(text: str) -> tuple[str, dict[str, float]]:
+    """``"time_offset:seconds=0.033"`` (or ``"time_offset"``, its defaults) as a ``SceneSpec``
+    effect entry. ``ValueError`` names an unknown effect or a malformed parameter."""
+    name, _, params = text.partition(":")
+    out: dict[str, float] = {}
+    for item in filter(None, params.split(",")):
+        key, sep, value = item.partition("=")
+        try:
+            if not sep:
+                raise ValueError
+            out[key] = float(value)
+        except ValueError:
+            raise ValueError(f"{text!r}: parameters are NAME=NUMBER, e.g. time_offset:seconds=0.033") from None
+    return name, out
+
+
+def scene_spec(name: str, without_effects: tuple[str, ...] = (), add_effects: tuple[str, ...] = ()):
     """The benchmark scene's spec with the synthetic effects ``without_effects`` left out (an
-    ablation: which injected effect costs how much). ``ValueError`` names an unknown effect."""
+    ablation: which injected effect costs how much) and ``add_effects`` (``parse_effect``'s
+    form) added or replacing the scene's own. ``ValueError`` names an unknown effect."""
     from dataclasses import replace
 
     from artitwin_core.synth import EFFECTS
 
-    unknown = sorted(set(without_effects) - set(EFFECTS))
+    added = [parse_effect(e) for e in add_effects]
+    unknown = sorted((set(without_effects) | {n for n, _ in added}) - set(EFFECTS))
     if unknown:
         raise ValueError(f"unknown effect(s) {unknown}; the synthetic effects are {sorted(EFFECTS)}")
     spec = BENCHMARK_SCENES[name]
-    return replace(spec, effects=tuple(e for e in spec.effects if e[0] not in without_effects))
+    drop = set(without_effects) | {n for n, _ in added}
+    return replace(spec, effects=tuple(e for e in spec.effects if e[0] not in drop) + tuple(added))
 
 
 def bench_scene(
     name: str, save_tracks: Path | None = None, cache: Path | None = None, static_poses: str = "refined",
-    write_cache: Path | None = None, without_effects: tuple[str, ...] = (),
+    write_cache: Path | None = None, without_effects: tuple[str, ...] = (), rgb_time_offset_s: float = 0.0,
+    add_effects: tuple[str, ...] = (),
 ) -> list[dict]:
-    scene = generate_scene(scene_spec(name, without_effects))
+    scene = generate_scene(scene_spec(name, without_effects, add_effects))
     d, truth = scene.dynamic, scene.truth
     up = _cached_upstream(name, cache) if cache is not None else _pipeline_upstream(name, scene, static_poses)
     masks = up["masks"]
@@ -246,6 +270,8 @@ def bench_scene(
         row["fit_s"] = time.perf_counter() - t0
         t0 = time.perf_counter()
         j = refine_joint_states(fit.joint, d, masks, label, up["canonical_from_session"], StateRefineConfig())
+        if rgb_time_offset_s:  # the effect time_offset, as the joint_states stage models it
+            j = to_rgb_clock(j, d.timestamps, rgb_time_offset_s)
         j = with_registration_error(j, up["registration_covariance"])  # as the joint_states stage does
         row["refine_s"] = time.perf_counter() - t0
         e = joint_errors(j, joint_true)
@@ -311,15 +337,21 @@ def main() -> None:
                         help="static poses the canonical TSDF is fused at (refined: as the pipeline)")
     parser.add_argument("--without-effects", nargs="*", default=[], metavar="EFFECT",
                         help="leave these synthetic effects (artitwin_core.synth.EFFECTS) out of every scene")
+    parser.add_argument("--add-effects", nargs="*", default=[], metavar="EFFECT[:PARAM=VALUE,...]",
+                        help="add these synthetic effects to every scene (replacing the scene's own of that name), "
+                        "e.g. time_offset:seconds=0.033")
+    parser.add_argument("--rgb-time-offset", type=float, default=0.0, metavar="SECONDS",
+                        help="model the effect time_offset with this lag of depth and pose behind the RGB (as "
+                        "--effect time_offset=SECONDS does; the diagnosis fits it)")
     args = parser.parse_args()
-    if args.cache and args.without_effects:
-        parser.error("--without-effects changes the recordings; it cannot reuse a --cache of the full scenes")
+    if args.cache and (args.without_effects or args.add_effects):
+        parser.error("--without-effects and --add-effects change the recordings; they cannot reuse a --cache of the full scenes")
     cv2.setNumThreads(2)
     rows = []
     for name in args.scenes:
         rows.extend(
             bench_scene(name, args.save_tracks, args.cache, args.static_poses, args.write_cache,
-                        tuple(args.without_effects))
+                        tuple(args.without_effects), args.rgb_time_offset, tuple(args.add_effects))
         )
         print(f"{name}: done", flush=True)
     columns = [
@@ -365,6 +397,8 @@ def main() -> None:
             "cache": str(args.cache) if args.cache else None,
             "static_poses": args.static_poses,
             "without_effects": list(args.without_effects),
+            "add_effects": list(args.add_effects),
+            "rgb_time_offset_s": args.rgb_time_offset,
         },
     )
     print(f"\nwrote {path}")
