@@ -158,12 +158,21 @@ class JointSet(Artifact):
     """All joints of a scene (one per moving part), with the fit's model-selection evidence."""
 
     kind = "joint_set"
-    schema_version = 1
+    schema_version = 2
 
     joints: list[JointParams] = Field(description="One joint per moving part, in the canonical frame.")
     selection: dict[str, dict[str, float]] = Field(
         default_factory=dict,
         description="Per joint name: score of each joint-type hypothesis (e.g. BIC, lower is better).",
+    )
+    rgb_time_offset_s: float = Field(
+        default=0.0,
+        description="0: each state is the part's at its frame's depth map and pose. Else the states are on the RGB "
+        "clock (the effect time_offset): the part's at the frame's RGB exposure, its depth map and pose (and tracks "
+        "lifted with them) being this many seconds later.",
+    )
+    timestamps: Array("float64", "T") | None = Field(
+        default=None, description="The frames' RGB times (seconds) when rgb_time_offset_s is not 0, [T]; else None."
     )
 
 

@@ -36,7 +36,7 @@ from artitwin_core.diagnostics import (
 from artitwin_core.diagnostics import diagnose as run_diagnosis
 from artitwin_core.diagnostics._report import residual_maps
 from artitwin_core.gaussians import GaussianParams
-from artitwin_core.joints import Joint
+from artitwin_core.joints import Joint, to_rgb_clock
 from artitwin_core.reconstruction import render_view
 from schemas import (
     CameraPoses,
@@ -202,6 +202,10 @@ def _track_data(joints: JointSet, trajectories: TrajectoriesArtifact, config: Di
         if np.count_nonzero(trajectories.valid[:, keep].any(0)) < config.min_tracks_count or jp.joint_type == "fixed":
             continue
         joint = to_core(Joint, jp)
+        if joints.rgb_time_offset_s != 0.0 and joints.timestamps is not None:
+            # The tracks were lifted with the depth maps and poses, recorded rgb_time_offset_s
+            # after the RGB whose clock the states are on: compare on the tracks' clock.
+            joint = to_rgb_clock(joint, joints.timestamps, -joints.rgb_time_offset_s)
         obs, valid = trajectories.points_in_world[:, keep], trajectories.valid[:, keep]
         model = track_model_from_joint(joint, obs, valid)
         out.append((jp.name, make_residual_data(tracks=model, tracks_obs=obs, tracks_valid=valid,
@@ -295,7 +299,7 @@ def report_from_sections(sections: list[tuple[str, Diagnosis, ResidualData]], ti
     )
 
 
-@stage(name="diagnose", version=4, config=DiagnoseConfig, output=DiagnosisReport)
+@stage(name="diagnose", version=5, config=DiagnoseConfig, output=DiagnosisReport)
 def diagnose_twin(
     capture: CaptureArtifact,
     prediction: ViewPrediction,

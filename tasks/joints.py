@@ -65,7 +65,7 @@ def fit_joints(trajectories: TrajectoriesArtifact, config: JointConfig) -> Joint
     return JointSet(joints=joints, selection=selection)
 
 
-@stage(name="joint_states", version=6, config=JointStateConfig, output=JointSet)
+@stage(name="joint_states", version=7, config=JointStateConfig, output=JointSet)
 def refine_states(
     joints: JointSet,
     dynamic: CaptureArtifact,
@@ -90,9 +90,16 @@ def refine_states(
             joint = to_rgb_clock(joint, capture.timestamps, config.rgb_time_offset_s)
         return with_registration_error(joint, registration.covariance)
 
+    # Where the states were moved to the RGB clock, the set says so (consumers comparing them with
+    # depth or tracks lifted from it move them back: ``to_rgb_clock`` with the opposite lag).
+    clock = (
+        {"rgb_time_offset_s": config.rgb_time_offset_s, "timestamps": np.asarray(capture.timestamps, np.float64)}
+        if config.rgb_time_offset_s != 0.0
+        else {}
+    )
     if not config.refine_from_depth:
         out = [to_artifact(JointParams, finish(to_core(Joint, p)), name=p.name) for p in joints.joints]
-        return JointSet(joints=out, selection=joints.selection)
+        return JointSet(joints=out, selection=joints.selection, **clock)
     seq = to_core(MaskSequence, masks)
     labels = {int(v) for v in np.unique(seq.part) if v > 0}
     out, selection = [], {name: dict(scores) for name, scores in joints.selection.items()}
@@ -110,4 +117,4 @@ def refine_states(
             changed = 0
         out.append(to_artifact(JointParams, finish(joint), name=params.name))
         selection.setdefault(params.name, {})["state_frames_changed"] = float(changed)
-    return JointSet(joints=out, selection=selection)
+    return JointSet(joints=out, selection=selection, **clock)

@@ -93,7 +93,11 @@ def test_joint_states_stage_refits_the_held_door_state():
         assert np.isclose(joint.pivot_se_m, np.hypot(0.001, 0.002)) and np.isclose(joint.axis_se_rad, 0.001)
     # The effect time_offset moves every state to its frame's RGB time (here without the refit):
     # states read 20 ms late are interpolated back between the frames.
-    late = refine_states(**inputs, config=JointStateConfig(refine_from_depth=False, rgb_time_offset_s=0.02)).joints[0]
+    late_set = refine_states(**inputs, config=JointStateConfig(refine_from_depth=False, rgb_time_offset_s=0.02))
+    late = late_set.joints[0]
     ts = scene.dynamic.timestamps
     np.testing.assert_allclose(late.q, np.interp(ts, ts + 0.02, held.q))
     assert np.abs(late.q - held.q).max() > np.radians(0.5)
+    # The set says which clock its states are on (the diagnosis moves them back for the tracks).
+    assert late_set.rgb_time_offset_s == 0.02 and np.array_equal(late_set.timestamps, ts)
+    assert same.rgb_time_offset_s == 0.0 and same.timestamps is None
