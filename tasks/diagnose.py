@@ -36,7 +36,7 @@ from artitwin_core.diagnostics import (
 from artitwin_core.diagnostics import diagnose as run_diagnosis
 from artitwin_core.diagnostics._report import residual_maps
 from artitwin_core.gaussians import GaussianParams
-from artitwin_core.joints import Joint, to_rgb_clock
+from artitwin_core.joints import Joint, poses_on_rgb_clock, to_rgb_clock
 from artitwin_core.reconstruction import render_view
 from schemas import (
     CameraPoses,
@@ -97,7 +97,7 @@ def predict_views(
                           frame_ids=capture.frame_ids.copy(), world_from_camera=np.asarray(poses.world_from_camera, np.float64))
 
 
-@stage(name="predict_dynamic", version=1, config=PredictViewsConfig, output=ViewPrediction)
+@stage(name="predict_dynamic", version=2, config=PredictViewsConfig, output=ViewPrediction)
 def predict_dynamic(
     twin: GaussianCheckpoint,
     dynamic: CaptureArtifact,
@@ -111,7 +111,13 @@ def predict_dynamic(
 
     Coverage leaves out the pipeline's hand pixels, and the depth prediction is NaN under them,
     so the hand (which the twin does not model) is not counted as the twin's error. The poses
-    recorded are the canonical ones the twin was rendered at.
+    recorded are the canonical ones the depth was rendered at.
+
+    Where the joint set's states are on the RGB clock (the effect time_offset: depth maps and
+    poses recorded ``joints.rgb_time_offset_s`` after the RGB), each frame's RGB is rendered at
+    its exposure (the pose interpolated back, ``poses_on_rgb_clock``, and the states as they
+    are) and its depth where the depth map was taken (the recorded pose, the states moved back
+    with ``to_rgb_clock``).
     """
     t_frames = dynamic.rgb.shape[0]
     if masks.hand.shape[0] != t_frames or any(len(j.q) != t_frames for j in joints.joints):
@@ -123,13 +129,20 @@ def predict_dynamic(
     params = to_core(GaussianParams, twin)
     js = [to_core(Joint, j) for j in joints.joints]
     poses = registration.canonical_from_session @ np.asarray(dynamic.world_from_camera, np.float64)
+    rgb_poses, js_depth = poses, js
+    lag = joints.rgb_time_offset_s
+    if lag != 0.0 and joints.timestamps is not None:
+        rgb_poses = poses_on_rgb_clock(poses, joints.timestamps, lag)
+        js_depth = [to_rgb_clock(j, joints.timestamps, -lag) for j in js]
     _, h, w, _ = dynamic.rgb.shape
     _, dh, dw = dynamic.depth.shape
     rgb, depth, cover = [], [], []
     for t in range(t_frames):
         q = [float(j.q[t]) for j in js]
-        colour, _, alpha = render_twin(params, js, q, poses[t], dynamic.rgb_intrinsics[t], w, h, backend=config.backend)
-        _, z, alpha_d = render_twin(params, js, q, poses[t], dynamic.depth_intrinsics[t], dw, dh, backend=config.backend)
+        q_d = [float(j.q[t]) for j in js_depth]
+        colour, _, alpha = render_twin(params, js, q, rgb_poses[t], dynamic.rgb_intrinsics[t], w, h, backend=config.backend)
+        _, z, alpha_d = render_twin(params, js_depth, q_d, poses[t], dynamic.depth_intrinsics[t], dw, dh,
+                                    backend=config.backend)
         hand = np.asarray(masks.hand[t], bool)
         # The hand mask on the depth grid: a depth pixel is the hand's if any RGB pixel it spans is.
         yy = np.minimum((np.arange(dh)[:, None] * h) // dh, h - 1)

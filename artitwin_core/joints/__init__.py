@@ -11,7 +11,7 @@ from artitwin_core.joints._metrics import (
 from artitwin_core.joints._model import joint_transforms
 from artitwin_core.joints._simulate import random_part_joint, simulate_trajectories
 from artitwin_core.joints._states import StateRefineConfig, refine_joint_states
-from artitwin_core.joints._timing import to_rgb_clock
+from artitwin_core.joints._timing import poses_on_rgb_clock, to_rgb_clock
 from artitwin_core.joints._types import JOINT_TYPES, Joint
 from artitwin_core.joints._uncertainty import with_registration_error
 
@@ -29,6 +29,7 @@ __all__ = [
     "joint_transforms",
     "line_distance",
     "point_line_distance",
+    "poses_on_rgb_clock",
     "random_part_joint",
     "refine_joint_states",
     "simulate_trajectories",

@@ -25,6 +25,17 @@ from artitwin_core._errors import InputError
 from artitwin_core.joints._types import Joint
 
 
+def _check_clock(ts: np.ndarray, depth_late_s: float) -> None:
+    if not np.all(np.isfinite(ts)) or np.any(np.diff(ts) <= 0):
+        raise InputError("timestamps must be finite and strictly increasing (seconds of each frame's RGB exposure)")
+    span = float(ts[-1] - ts[0]) if ts.size > 1 else 0.0
+    if not np.isfinite(depth_late_s) or abs(depth_late_s) > span:
+        raise InputError(
+            f"time offset {depth_late_s!r} s must be finite and within the recording's {span:.3f} s; it is the "
+            "lag of the depth map and pose behind the RGB, as the diagnosis's time_offset reports it"
+        )
+
+
 def to_rgb_clock(joint: Joint, timestamps: np.ndarray, depth_late_s: float) -> Joint:
     """``joint`` with ``q``, ``confidence`` and ``residual`` moved from the depth clock to the RGB one.
 
@@ -49,14 +60,7 @@ def to_rgb_clock(joint: Joint, timestamps: np.ndarray, depth_late_s: float) -> J
     q = np.asarray(joint.q, dtype=np.float64)
     if ts.shape != q.shape:
         raise InputError(f"timestamps has shape {ts.shape} but the joint has {q.shape[0]} states; pass the recording's frame timestamps")
-    if not np.all(np.isfinite(ts)) or np.any(np.diff(ts) <= 0):
-        raise InputError("timestamps must be finite and strictly increasing (seconds of each frame's RGB exposure)")
-    span = float(ts[-1] - ts[0]) if ts.size > 1 else 0.0
-    if not np.isfinite(depth_late_s) or abs(depth_late_s) > span:
-        raise InputError(
-            f"time offset {depth_late_s!r} s must be finite and within the recording's {span:.3f} s; it is the "
-            "lag of the depth map and pose behind the RGB, as the diagnosis's time_offset reports it"
-        )
+    _check_clock(ts, depth_late_s)
     has = np.isfinite(q)
     if depth_late_s == 0.0 or has.sum() < 2:
         return joint
@@ -76,3 +80,29 @@ def to_rgb_clock(joint: Joint, timestamps: np.ndarray, depth_late_s: float) -> J
         joint, q=q_new, confidence=conf, residual=res,
         q_range=np.array([float(np.nanmin(q_new)), float(np.nanmax(q_new))]),
     )  # fmt: skip
+
+
+def poses_on_rgb_clock(world_from_camera: np.ndarray, timestamps: np.ndarray, depth_late_s: float) -> np.ndarray:
+    """``[T, 4, 4]`` camera poses at the frames' RGB exposures, from poses recorded
+    ``depth_late_s`` later (with the depth maps): rotations by spherical interpolation, centres
+    linearly, between the recorded poses; frames outside their span hold the nearest one.
+
+    Raises:
+        InputError: ``world_from_camera`` not ``[T, 4, 4]`` for the ``[T]`` timestamps, or a
+            clock as ``to_rgb_clock`` refuses it.
+    """
+    from scipy.spatial.transform import Rotation, Slerp
+
+    poses = np.asarray(world_from_camera, dtype=np.float64)
+    ts = np.asarray(timestamps, dtype=np.float64)
+    if poses.shape != (ts.shape[0], 4, 4):
+        raise InputError(f"world_from_camera has shape {poses.shape}; expected ({ts.shape[0]}, 4, 4) for the timestamps")
+    _check_clock(ts, depth_late_s)
+    if depth_late_s == 0.0 or ts.size < 2:
+        return poses.copy()
+    recorded_at = ts + depth_late_s
+    at = np.clip(ts, recorded_at[0], recorded_at[-1])
+    out = poses.copy()
+    out[:, :3, :3] = Slerp(recorded_at, Rotation.from_matrix(poses[:, :3, :3]))(at).as_matrix()
+    out[:, :3, 3] = np.stack([np.interp(at, recorded_at, poses[:, i, 3]) for i in range(3)], 1)
+    return out

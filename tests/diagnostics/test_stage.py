@@ -151,3 +151,48 @@ def test_states_on_the_rgb_clock_are_compared_on_the_tracks_clock():
     # (this scene has 6 frames a second, and the states were interpolated there and back).
     assert naive > 10.0 * base, (naive, base)
     assert aware < 0.3 * naive, (aware, naive)
+
+
+def test_predict_dynamic_renders_rgb_and_depth_each_on_its_clock(monkeypatch):
+    """States on the RGB clock (time_offset modelled): each frame's RGB is rendered at its exposure
+    (pose interpolated back, the states as stored), its depth at the recorded pose with the
+    states moved back to the depth map's time."""
+    import tasks.diagnose as td
+    from artitwin_core.joints import Joint, poses_on_rgb_clock, to_rgb_clock
+    from schemas import GaussianCheckpoint, MaskSequenceArtifact, Registration
+    from schemas._diagnose import PredictViewsConfig
+    from tasks._convert import to_core
+
+    sc = scene("door", ())
+    dyn = to_artifact(CaptureArtifact, sc.dynamic)
+    t_frames = dyn.rgb.shape[0]
+    hinge = replace(sc.truth.joints[0], joint_type="revolute", pitch=0.0)
+    lag = 0.05
+    stored = JointSet(joints=[to_artifact(JointParams, hinge, name="joint_0")], rgb_time_offset_s=lag,
+                      timestamps=dyn.timestamps)
+    ckpt = GaussianCheckpoint(
+        means=np.zeros((1, 3), np.float32), quats_wxyz=np.float32([[1, 0, 0, 0]]), log_scales=np.zeros((1, 3), np.float32),
+        opacity_logits=np.zeros(1, np.float32), sh=np.zeros((1, 1, 3), np.float32), labels=np.zeros(1, np.int32))
+    calls = []
+
+    def fake_render(params, joints, q, pose, intrinsics, w, h, **_):
+        calls.append((w, np.asarray(q, float), np.asarray(pose)))
+        return np.zeros((h, w, 3)), np.ones((h, w)), np.ones((h, w))
+
+    monkeypatch.setattr(td, "render_twin", fake_render)
+    masks = MaskSequenceArtifact(part=np.zeros(dyn.rgb.shape[:3], np.uint8), hand=np.zeros(dyn.rgb.shape[:3], bool),
+                                 score=np.ones(t_frames, np.float32))
+    reg = Registration(canonical_from_session=np.eye(4), residual_m=0.0, inlier_fraction=1.0, method="test")
+    td.predict_dynamic(ckpt, dyn, reg, masks, stored, PredictViewsConfig(backend="cpu"))
+    width = dyn.rgb.shape[2]
+    rgb_calls = [c for c in calls if c[0] == width]
+    depth_calls = [c for c in calls if c[0] != width]
+    rgb_poses = poses_on_rgb_clock(dyn.world_from_camera, dyn.timestamps, lag)
+    depth_q = to_rgb_clock(to_core(Joint, stored.joints[0]), dyn.timestamps, -lag).q
+    for t in range(t_frames):
+        np.testing.assert_allclose(rgb_calls[t][2], rgb_poses[t])
+        np.testing.assert_allclose(rgb_calls[t][1], [hinge.q[t]])
+        np.testing.assert_allclose(depth_calls[t][2], dyn.world_from_camera[t])
+        np.testing.assert_allclose(depth_calls[t][1], [depth_q[t]])
+    # The camera moves between frames, so the two clocks' poses differ.
+    assert max(np.linalg.norm(rgb_poses[t][:3, 3] - dyn.world_from_camera[t][:3, 3]) for t in range(t_frames)) > 1e-3

@@ -54,3 +54,27 @@ def test_bad_timing_input_is_named():
         to_rgb_clock(joint, ts[::-1], 0.03)
     with pytest.raises(InputError, match="time offset"):
         to_rgb_clock(joint, ts, 5.0)
+
+
+def test_poses_move_to_the_rgb_clock():
+    from artitwin_core.geometry import axis_angle_to_matrix
+    from artitwin_core.joints import poses_on_rgb_clock
+
+    ts = np.arange(20) / 15.0
+
+    def pose_at(t):
+        p = np.eye(4)
+        p[:3, :3] = axis_angle_to_matrix(np.array([0.2, 1.0, 0.1]) / np.linalg.norm([0.2, 1.0, 0.1]), 0.4 * t)
+        p[:3, 3] = [0.3 * t, 0.1, -0.2 * t]
+        return p
+
+    lag = 0.033
+    recorded = np.stack([pose_at(t + lag) for t in ts])  # taken with the depth, lag later
+    moved = poses_on_rgb_clock(recorded, ts, lag)
+    truth = np.stack([pose_at(t) for t in ts])
+    # A constant turn and a straight path are interpolated exactly, but the first frame (before
+    # the first recorded pose) holds it.
+    np.testing.assert_allclose(moved[1:], truth[1:], atol=1e-9)
+    np.testing.assert_allclose(moved[0], recorded[0])
+    with pytest.raises(InputError, match="expected"):
+        poses_on_rgb_clock(recorded[:-1], ts, lag)
