@@ -186,10 +186,10 @@ class PipelineConfig(StageConfig):
             update["reconstruct"] = self.reconstruct.model_copy(update={"sensor_effects": merged})
         if "screw_joint" in names:
             update["fit_joints"] = self.fit_joints.model_copy(update={"model_screw": True})
-        if "time_offset" in values:
-            update["joint_states"] = self.joint_states.model_validate(
-                {**self.joint_states.model_dump(), "rgb_time_offset_s": values["time_offset"]}
-            )
+        for name, value in values.items():
+            stage, field = EFFECT_STAGES[name], EFFECT_VALUES[name][1]
+            current = update.get(stage, getattr(self, stage))
+            update[stage] = current.model_validate({**current.model_dump(), field: value})  # validated: bounds hold
         return self.model_copy(update=update)
 
     def enabled_effects(self) -> list[str]:
@@ -197,8 +197,10 @@ class PipelineConfig(StageConfig):
         out = list(self.reconstruct.sensor_effects)
         if self.fit_joints.model_screw:
             out.append("screw_joint")
-        if self.joint_states.rgb_time_offset_s != 0.0:
-            out.append(f"time_offset={self.joint_states.rgb_time_offset_s:g}")
+        for name, (_, field) in EFFECT_VALUES.items():
+            value = getattr(getattr(self, EFFECT_STAGES[name]), field)
+            if value != 0.0:
+                out.append(f"{name}={value:g}")
         return sorted(out)
 
     @classmethod
