@@ -5,6 +5,12 @@ Scanner folders. All give OpenCV camera axes, camera-to-world poses in metres, i
 and depth resolution, and raise :class:`artitwin_core.InputError` naming file and frame on bad input.
 """
 
+from artitwin_core.capture._calibrate import (
+    DepthCalibration,
+    DepthCalibrationConfig,
+    calibrate_depth,
+    estimate_depth_calibration,
+)
 from artitwin_core.capture._common import depth_intrinsics_from_rgb, scale_intrinsics
 from artitwin_core.capture._detect import FORMATS, detect_format, read_capture, recording_files
 from artitwin_core.capture._nerfstudio import read_nerfstudio, write_nerfstudio
@@ -18,10 +24,14 @@ from artitwin_core.capture._types import Capture, intrinsics_matrix
 __all__ = [
     "FORMATS",
     "Capture",
+    "DepthCalibration",
+    "DepthCalibrationConfig",
     "ReadOptions",
     "SceneRecordings",
+    "calibrate_depth",
     "depth_intrinsics_from_rgb",
     "detect_format",
+    "estimate_depth_calibration",
     "find_scene_recordings",
     "intrinsics_matrix",
     "read_capture",
