@@ -26,7 +26,15 @@ from PIL import Image
 from artitwin_core.capture import find_scene_recordings, recording_files
 from flows._runner import Executor, StageRun, raw_input
 from infra.store import ArtifactStore
-from schemas import DiagnosisReport, ExportBundle, JointSet, PipelineConfig, Registration, StageReport
+from schemas import (
+    DepthCalibrationResult,
+    DiagnosisReport,
+    ExportBundle,
+    JointSet,
+    PipelineConfig,
+    Registration,
+    StageReport,
+)
 
 SUMMARY_VERSION = 1
 
@@ -47,6 +55,20 @@ def scene_pipeline(scene: str | Path, config: PipelineConfig, ex: Executor) -> d
     h["reconstruct_report"] = ex.submit(
         "reconstruct_report", config.reconstruct, {"capture": static, "poses": poses, "gaussians": gaussians}, "static"
     )
+    # With the sensor's depth error modelled (the effect depth_scale_offset), it is found from the
+    # static recording and every later stage reads both recordings' depth corrected by it. The
+    # static diagnosis still compares the depth as measured with the twin seen through the sensor
+    # model the reconstruction learned.
+    measured_static = static
+    if "depth_scale_offset" in config.reconstruct.sensor_effects:
+        calibration = h["depth_calibration"] = ex.submit(
+            "depth_calibration", config.calibrate_depth, {"capture": static}, "static"
+        )
+        for label in ("static", "dynamic"):
+            caps[label] = h[f"calibrate_depth/{label}"] = ex.submit(
+                "calibrate_depth", config.calibrate_depth, {"capture": caps[label], "calibration": calibration}, label
+            )
+        static, dynamic = caps["static"], caps["dynamic"]
     # II. registration and part masks of the dynamic recording
     reg = h["register"] = ex.submit("register", config.registration, {"static": static, "dynamic": dynamic}, "dynamic")
     masks = h["part_masks"] = ex.submit(
@@ -94,12 +116,13 @@ def scene_pipeline(scene: str | Path, config: PipelineConfig, ex: Executor) -> d
         "diagnose_dynamic", config.diagnose, {"dynamic": dynamic, "prediction": dyn_prediction}, "dynamic"
     )
     prediction = h["predict_views"] = ex.submit(
-        "predict_views", config.predict_views, {"capture": static, "poses": poses, "checkpoint": gaussians}, "static"
+        "predict_views", config.predict_views, {"capture": measured_static, "poses": poses, "checkpoint": gaussians},
+        "static",
     )
     h["diagnose"] = ex.submit(
         "diagnose",
         config.diagnose,
-        {"capture": static, "prediction": prediction, "joints": joints, "trajectories": tracks},
+        {"capture": measured_static, "prediction": prediction, "joints": joints, "trajectories": tracks},
         "scene",
     )
     # V. simulator files of the twin
@@ -151,6 +174,9 @@ def build_summary(
             reg = store.get(run.key, Registration)
             entry["metrics"] = {"residual_m": reg.residual_m, "inlier_frac": reg.inlier_fraction}
             entry["canonical_from_session"] = reg.canonical_from_session.tolist()
+        elif run.kind == DepthCalibrationResult.kind:
+            cal = store.get(run.key, DepthCalibrationResult)
+            entry["metrics"] = {"depth_scale": cal.scale, "depth_offset_m": cal.offset_m, "residual_m": cal.residual_m}
         elif run.kind == DiagnosisReport.kind:
             report = store.get(run.key, DiagnosisReport)
             entry["metrics"] = {k: _finite(v) for k, v in report.metrics.items()}

@@ -8,6 +8,7 @@ from schemas._articulate import ArticulateConfig
 from schemas._artifacts import (
     CameraPoses,
     CaptureArtifact,
+    DepthCalibrationResult,
     GaussianCheckpoint,
     JointParams,
     JointSet,
@@ -28,6 +29,7 @@ from schemas._base import (
 )
 from schemas._configs import (
     CaptureCheckConfig,
+    DepthCalibrationConfig,
     IngestConfig,
     JointConfig,
     JointStateConfig,
@@ -63,6 +65,7 @@ __all__ = [
     "GaussianCheckpoint",
     "IngestConfig",
     "JointConfig",
+    "DepthCalibrationConfig",
     "JointStateConfig",
     "PartMasksConfig",
     "PoseRefineStageConfig",
@@ -74,6 +77,7 @@ __all__ = [
     "JointSet",
     "MaskSequenceArtifact",
     "PipelineConfig",
+    "DepthCalibrationResult",
     "Registration",
     "ReportImage",
     "SchemaError",

@@ -87,6 +87,20 @@ class Registration(Artifact):
     )
 
 
+class DepthCalibrationResult(Artifact):
+    """The depth sensor's affine error, ``measured = scale * true + offset_m``, and how well the
+    recording's frames agree once it is undone."""
+
+    kind = "depth_calibration"
+    schema_version = 1
+
+    scale: float = Field(description="Scale error of the sensor's depth (1 = none).")
+    offset_m: float = Field(description="Offset error of the sensor's depth, metres (0 = none).")
+    residual_m: float = Field(description="Robust spread of the frames' point-to-plane disagreement after calibration, metres.")
+    points_count: int = Field(description="Point pairs in the final fit.")
+    method: str = Field(description="How it was found, e.g. 'multi-view-depth-consistency'.")
+
+
 # ----------------------------------------------------------------------------------------------
 # Masks and tracks
 # ----------------------------------------------------------------------------------------------

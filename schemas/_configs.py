@@ -60,6 +60,23 @@ class PartMasksConfig(StageConfig):
     )
 
 
+class DepthCalibrationConfig(StageConfig):
+    """Finding the depth sensor's error from the static recording and correcting both recordings'
+    depth by it, when the effect depth_scale_offset is modelled (artitwin_core.capture.estimate_depth_calibration)."""
+
+    frame_gaps: tuple[int, ...] = Field(
+        default=(2, 4, 8), min_length=1, description="Each static frame's depth is compared with the frames this many later."
+    )
+    max_depth_m: float = Field(default=4.5, gt=0, description="Depth beyond this is not used, metres.")
+    max_scale_error: float = Field(
+        default=0.2, gt=0, le=1,
+        description="An estimated scale further than this from 1 is not applied: the stage fails and names it.",
+    )
+    max_offset_m: float = Field(
+        default=0.2, gt=0, description="An estimated offset larger than this (metres) is not applied: the stage fails and names it."
+    )
+
+
 class TrackConfig(StageConfig):
     """Tracking points on each moving part and lifting them to 3D (see artitwin_core.tracking)."""
 
@@ -132,6 +149,11 @@ class PipelineConfig(StageConfig):
     capture_check: CaptureCheckConfig = Field(default_factory=CaptureCheckConfig, description="Capture quality report.")
     refine_poses: PoseRefineStageConfig = Field(default_factory=PoseRefineStageConfig, description="Static pose refinement.")
     reconstruct: ReconstructConfig = Field(default_factory=ReconstructConfig, description="Canonical 3DGS training.")
+    calibrate_depth: DepthCalibrationConfig = Field(
+        default_factory=DepthCalibrationConfig,
+        description="The depth sensor's error found from the static recording, and both recordings' depth corrected "
+        "by it, when depth_scale_offset is modelled.",
+    )
     registration: RegisterConfig = Field(default_factory=RegisterConfig, description="Dynamic-to-canonical registration.")
     part_masks: PartMasksConfig = Field(default_factory=PartMasksConfig, description="Part and hand masks.")
     track: TrackConfig = Field(default_factory=TrackConfig, description="3D point tracks on the parts.")

@@ -7,6 +7,7 @@ holds the registered stage descriptors by name.
 from tasks._convert import to_artifact, to_core
 from tasks._stage import STAGES, Stage, stage
 from tasks.articulate import articulate_report, articulate_twin
+from tasks.calibrate import calibrate_capture_depth, estimate_capture_depth_calibration
 from tasks.diagnose import diagnose_dynamic, diagnose_twin, predict_dynamic, predict_views
 from tasks.export import export_twin
 from tasks.ingest import check_capture, ingest_recording
@@ -20,9 +21,11 @@ __all__ = [
     "Stage",
     "articulate_report",
     "articulate_twin",
+    "calibrate_capture_depth",
     "check_capture",
     "diagnose_dynamic",
     "diagnose_twin",
+    "estimate_capture_depth_calibration",
     "export_twin",
     "fit_joints",
     "ingest_recording",

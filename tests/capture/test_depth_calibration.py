@@ -1,0 +1,119 @@
+"""The effect depth_scale_offset through stages II-V: the sensor's affine depth error is found
+from the static recording's own frames and undone in both recordings."""
+
+from __future__ import annotations
+
+from dataclasses import replace
+
+import numpy as np
+import pytest
+
+from artitwin_core import InputError
+from artitwin_core.capture import DepthCalibrationConfig, calibrate_depth, estimate_depth_calibration
+from artitwin_core.synth import BENCHMARK_SCENES, generate_scene, write_scene
+from flows._pipeline import scene_pipeline
+from schemas import CaptureArtifact, DepthCalibrationResult, PipelineConfig
+from schemas import DepthCalibrationConfig as StageConfig
+from tasks import to_artifact
+from tasks.calibrate import calibrate_capture_depth, estimate_capture_depth_calibration
+
+BIAS = {"scale": 1.03, "offset_m": 0.01}  # the synthetic effect depth_bias: recorded = 1.03 z + 1 cm
+
+
+def _door(bias: bool):
+    spec = BENCHMARK_SCENES["door"]
+    return generate_scene(replace(spec, effects=(("depth_bias", BIAS),) if bias else ()))
+
+
+@pytest.fixture(scope="module")
+def doors():
+    return _door(False), _door(True)
+
+
+def test_calibrate_depth_undoes_the_bias_exactly(doors):
+    clean, biased = doors
+    out = calibrate_depth(biased.static, BIAS["scale"], BIAS["offset_m"])
+    assert out is not biased.static and out.depth is not biased.static.depth  # a new capture
+    ok = np.isfinite(clean.static.depth)
+    assert np.array_equal(ok, np.isfinite(out.depth))
+    np.testing.assert_allclose(out.depth[ok], clean.static.depth[ok], atol=2e-6)
+    np.testing.assert_array_equal(out.rgb, biased.static.rgb)
+    # The biased depth itself is 1-8 cm off, so the comparison can fail.
+    assert np.nanmax(np.abs(biased.static.depth - clean.static.depth)) > 0.05
+
+
+def test_estimate_finds_the_injected_bias_and_no_bias_where_there_is_none(doors):
+    clean, biased = doors
+    found = estimate_depth_calibration(biased.static)
+    assert found.scale == pytest.approx(1.03, abs=0.004), found
+    assert found.offset_m == pytest.approx(0.01, abs=0.004), found
+    none = estimate_depth_calibration(clean.static)
+    assert none.scale == pytest.approx(1.0, abs=0.004), none
+    assert none.offset_m == pytest.approx(0.0, abs=0.004), none
+    # At the cabinet's 2 m: 0.07 m injected, found within 5 mm either way.
+    assert abs(found.scale * 2.0 + found.offset_m - 2.07) < 0.005
+    assert abs(none.scale * 2.0 + none.offset_m - 2.0) < 0.005
+
+
+def test_bad_calibration_input_is_named(doors):
+    _, biased = doors
+    with pytest.raises(InputError, match="scale must be a positive"):
+        calibrate_depth(biased.static, 0.0, 0.0)
+    with pytest.raises(InputError, match="offset_m must be a finite"):
+        calibrate_depth(biased.static, 1.0, float("nan"))
+    two = replace(biased.static, **{f: getattr(biased.static, f)[:2] for f in
+                                    ("rgb", "depth", "confidence", "rgb_intrinsics", "depth_intrinsics",
+                                     "world_from_camera", "timestamps", "frame_ids")})
+    with pytest.raises(InputError, match="no frame pairs"):
+        estimate_depth_calibration(two, config=DepthCalibrationConfig(frame_gaps=(4,)))
+
+
+def test_stages_estimate_on_the_static_recording_and_correct_either(doors):
+    clean, biased = doors
+    static = to_artifact(CaptureArtifact, biased.static, source_path="static.r3d")
+    cal = estimate_capture_depth_calibration(static, StageConfig())
+    assert isinstance(cal, DepthCalibrationResult) and cal.method == "multi-view-depth-consistency"
+    assert cal.scale == pytest.approx(1.03, abs=0.004) and cal.points_count > 1000
+    dynamic = to_artifact(CaptureArtifact, biased.dynamic)
+    fixed = calibrate_capture_depth(dynamic, cal, StageConfig())
+    ok = np.isfinite(clean.dynamic.depth) & np.isfinite(fixed.depth)
+    err = np.abs(fixed.depth[ok] - clean.dynamic.depth[ok])
+    assert np.median(err) < 0.004 and np.median(np.abs(dynamic.depth[ok] - clean.dynamic.depth[ok])) > 0.05
+    np.testing.assert_array_equal(fixed.world_from_camera, dynamic.world_from_camera)
+    with pytest.raises(InputError, match="depth_calibration.max_scale_error"):
+        estimate_capture_depth_calibration(static, StageConfig(max_scale_error=0.01))
+
+
+class _Recorder:
+    """An executor that runs nothing: each handle is the stage/label that made it."""
+
+    def __init__(self):
+        self.calls = {}
+
+    def submit(self, stage_name, config, inputs, label):
+        handle = f"{stage_name}/{label}"
+        self.calls[handle] = inputs
+        return handle
+
+    def result(self, handle):
+        raise AssertionError("not run")
+
+
+def test_pipeline_routes_later_stages_through_the_calibration_when_modelled(tmp_path):
+    scene = write_scene(generate_scene(BENCHMARK_SCENES["tiny"]), tmp_path / "scene")
+    plain, ex = _Recorder(), _Recorder()
+    scene_pipeline(scene, PipelineConfig.preset("quick"), plain)
+    assert not any(k.startswith(("depth_calibration", "calibrate_depth")) for k in plain.calls)
+    assert plain.calls["register/dynamic"] == {"static": "ingest/static", "dynamic": "ingest/dynamic"}
+    scene_pipeline(scene, PipelineConfig.preset("quick").with_effects(["depth_scale_offset"]), ex)
+    assert ex.calls["depth_calibration/static"] == {"capture": "ingest/static"}
+    cal = "depth_calibration/static"
+    assert ex.calls["calibrate_depth/dynamic"] == {"capture": "ingest/dynamic", "calibration": cal}
+    assert ex.calls["register/dynamic"] == {"static": "calibrate_depth/static", "dynamic": "calibrate_depth/dynamic"}
+    for name in ("track/dynamic", "joint_states/dynamic", "predict_dynamic/dynamic"):
+        assert ex.calls[name]["dynamic"] == "calibrate_depth/dynamic", name
+    assert ex.calls["articulate/scene"]["static"] == "calibrate_depth/static"
+    # The 3DGS learns the sensor's error itself, and the static diagnosis compares the depth as measured.
+    assert ex.calls["reconstruct/static"]["capture"] == "ingest/static"
+    assert ex.calls["predict_views/static"]["capture"] == "ingest/static"
+    assert ex.calls["diagnose/scene"]["capture"] == "ingest/static"
