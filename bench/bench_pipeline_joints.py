@@ -33,6 +33,10 @@ costs (sensor-effects without ``depth_bias pose_drift`` isolates its time offset
 ``--add-effects time_offset:seconds=0.033`` adds effects to every scene instead.
 ``--rgb-time-offset SECONDS`` models the effect ``time_offset`` (``JointStateConfig.rgb_time_offset_s``,
 the lag the diagnosis fits): the states are moved to the RGB exposures' times.
+``--depth-calibration SCALE,OFFSET_M`` corrects both recordings' depth to ``(measured - OFFSET_M) /
+SCALE`` before registration; ``--depth-calibration estimate`` models the effect ``depth_scale_offset``
+as the pipeline does (the ``depth_calibration`` stage's ``estimate_depth_calibration`` on the static
+recording, applied to both).
 """
 
 from __future__ import annotations
@@ -50,6 +54,7 @@ sys.path.insert(0, str(Path(__file__).resolve().parent))
 
 from _common import print_table, write_results  # noqa: E402
 
+from artitwin_core.capture import calibrate_depth, estimate_depth_calibration  # noqa: E402
 from artitwin_core.change import PartConfig, build_canonical_tsdf, segment_parts  # noqa: E402
 from artitwin_core.joints import (  # noqa: E402
     JointFitConfig,
@@ -206,9 +211,21 @@ def scene_spec(name: str, without_effects: tuple[str, ...] = (), add_effects: tu
 def bench_scene(
     name: str, save_tracks: Path | None = None, cache: Path | None = None, static_poses: str = "refined",
     write_cache: Path | None = None, without_effects: tuple[str, ...] = (), rgb_time_offset_s: float = 0.0,
-    add_effects: tuple[str, ...] = (),
+    add_effects: tuple[str, ...] = (), depth_calibration: tuple[float, float] | str | None = None,
 ) -> list[dict]:
     scene = generate_scene(scene_spec(name, without_effects, add_effects))
+    calibration = None
+    if depth_calibration is not None:  # the effect depth_scale_offset, as the calibrate_depth stage models it
+        from dataclasses import replace
+
+        if depth_calibration == "estimate":
+            found = estimate_depth_calibration(scene.static)
+            scale, offset = found.scale, found.offset_m
+        else:
+            scale, offset = depth_calibration
+        calibration = (scale, offset)
+        scene = replace(scene, static=calibrate_depth(scene.static, scale, offset),
+                        dynamic=calibrate_depth(scene.dynamic, scale, offset))
     d, truth = scene.dynamic, scene.truth
     up = _cached_upstream(name, cache) if cache is not None else _pipeline_upstream(name, scene, static_poses)
     masks = up["masks"]
@@ -217,6 +234,7 @@ def bench_scene(
     for k, joint_true in enumerate(truth.joints):
         row = {
             "scene": name,
+            "depth_calibration": "" if calibration is None else f"{calibration[0]:.4f} z + {1e3 * calibration[1]:.1f} mm",
             "part": k,
             "joint_true": joint_true.joint_type,
             "frames": d.num_frames,
@@ -312,6 +330,16 @@ def bench_scene(
     return rows
 
 
+def _calibration(text: str) -> tuple[float, float] | str:
+    if text == "estimate":
+        return text
+    try:
+        scale, offset = (float(v) for v in text.split(","))
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"{text!r}: give SCALE,OFFSET_M, e.g. 1.03,0.01") from None
+    return scale, offset
+
+
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--scenes", nargs="*", default=DEFAULT_SCENES)
@@ -343,7 +371,12 @@ def main() -> None:
     parser.add_argument("--rgb-time-offset", type=float, default=0.0, metavar="SECONDS",
                         help="model the effect time_offset with this lag of depth and pose behind the RGB (as "
                         "--effect time_offset=SECONDS does; the diagnosis fits it)")
+    parser.add_argument("--depth-calibration", type=_calibration, default=None, metavar="SCALE,OFFSET_M|estimate",
+                        help="correct both recordings' depth, measured = SCALE * true + OFFSET_M; 'estimate' finds "
+                        "them from the static recording as the depth_calibration stage does (the effect depth_scale_offset)")
     args = parser.parse_args()
+    if args.cache and args.depth_calibration:
+        parser.error("--depth-calibration changes the depth; it cannot reuse a --cache")
     if args.cache and (args.without_effects or args.add_effects):
         parser.error("--without-effects and --add-effects change the recordings; they cannot reuse a --cache of the full scenes")
     cv2.setNumThreads(2)
@@ -351,12 +384,14 @@ def main() -> None:
     for name in args.scenes:
         rows.extend(
             bench_scene(name, args.save_tracks, args.cache, args.static_poses, args.write_cache,
-                        tuple(args.without_effects), args.rgb_time_offset, tuple(args.add_effects))
+                        tuple(args.without_effects), args.rgb_time_offset, tuple(args.add_effects),
+                        args.depth_calibration)
         )
         print(f"{name}: done", flush=True)
     columns = [
         "scene",
         "part",
+        "depth_calibration",
         "joint_true",
         "joint_est",
         "type_ok",
@@ -399,6 +434,8 @@ def main() -> None:
             "without_effects": list(args.without_effects),
             "add_effects": list(args.add_effects),
             "rgb_time_offset_s": args.rgb_time_offset,
+            "depth_calibration": (list(args.depth_calibration) if isinstance(args.depth_calibration, tuple)
+                                  else args.depth_calibration),
         },
     )
     print(f"\nwrote {path}")
