@@ -48,27 +48,30 @@ def scene_pipeline(scene: str | Path, config: PipelineConfig, ex: Executor) -> d
         raw = raw_input(path, recording_files(path))
         caps[label] = h[f"ingest/{label}"] = ex.submit("ingest", config.ingest, {"recording": raw}, label)
         h[f"capture_check/{label}"] = ex.submit("capture_check", config.capture_check, {"capture": caps[label]}, label)
-    static, dynamic = caps["static"], caps["dynamic"]
-    # I. canonical reconstruction of the static recording
-    poses = h["refine_poses"] = ex.submit("refine_poses", config.refine_poses, {"capture": static}, "static")
-    gaussians = h["reconstruct"] = ex.submit("reconstruct", config.reconstruct, {"capture": static, "poses": poses}, "static")
-    h["reconstruct_report"] = ex.submit(
-        "reconstruct_report", config.reconstruct, {"capture": static, "poses": poses, "gaussians": gaussians}, "static"
-    )
     # With the sensor's depth error modelled (the effect depth_scale_offset), it is found from the
-    # static recording and every later stage reads both recordings' depth corrected by it. The
-    # static diagnosis still compares the depth as measured with the twin seen through the sensor
-    # model the reconstruction learned.
-    measured_static = static
+    # static recording and every stage reads both recordings' depth corrected by it, the 3DGS too:
+    # the Gaussians are then metric, as the joints fitted to the corrected depth are. The 3DGS is
+    # not asked to learn the error again: its own estimate is loose (±1.5 % on the tiny scene) and
+    # would pull the Gaussians off the corrected depth.
+    recon_config = config.reconstruct
     if "depth_scale_offset" in config.reconstruct.sensor_effects:
+        recon_config = recon_config.model_copy(
+            update={"sensor_effects": [e for e in recon_config.sensor_effects if e != "depth_scale_offset"]}
+        )
         calibration = h["depth_calibration"] = ex.submit(
-            "depth_calibration", config.calibrate_depth, {"capture": static}, "static"
+            "depth_calibration", config.calibrate_depth, {"capture": caps["static"]}, "static"
         )
         for label in ("static", "dynamic"):
             caps[label] = h[f"calibrate_depth/{label}"] = ex.submit(
                 "calibrate_depth", config.calibrate_depth, {"capture": caps[label], "calibration": calibration}, label
             )
-        static, dynamic = caps["static"], caps["dynamic"]
+    static, dynamic = caps["static"], caps["dynamic"]
+    # I. canonical reconstruction of the static recording
+    poses = h["refine_poses"] = ex.submit("refine_poses", config.refine_poses, {"capture": static}, "static")
+    gaussians = h["reconstruct"] = ex.submit("reconstruct", recon_config, {"capture": static, "poses": poses}, "static")
+    h["reconstruct_report"] = ex.submit(
+        "reconstruct_report", recon_config, {"capture": static, "poses": poses, "gaussians": gaussians}, "static"
+    )
     # II. registration and part masks of the dynamic recording
     reg = h["register"] = ex.submit("register", config.registration, {"static": static, "dynamic": dynamic}, "dynamic")
     masks = h["part_masks"] = ex.submit(
@@ -116,13 +119,12 @@ def scene_pipeline(scene: str | Path, config: PipelineConfig, ex: Executor) -> d
         "diagnose_dynamic", config.diagnose, {"dynamic": dynamic, "prediction": dyn_prediction}, "dynamic"
     )
     prediction = h["predict_views"] = ex.submit(
-        "predict_views", config.predict_views, {"capture": measured_static, "poses": poses, "checkpoint": gaussians},
-        "static",
+        "predict_views", config.predict_views, {"capture": static, "poses": poses, "checkpoint": gaussians}, "static"
     )
     h["diagnose"] = ex.submit(
         "diagnose",
         config.diagnose,
-        {"capture": measured_static, "prediction": prediction, "joints": joints, "trajectories": tracks},
+        {"capture": static, "prediction": prediction, "joints": joints, "trajectories": tracks},
         "scene",
     )
     # V. simulator files of the twin

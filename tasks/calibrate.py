@@ -1,8 +1,9 @@
 """Stages: find the depth sensor's error from the static recording, and undo it in either recording.
 
-They run when the effect ``depth_scale_offset`` is modelled. One sensor made both recordings, so
-the error found from the static sweep (whose frames see the room from many places) corrects the
-dynamic recording too; every stage from the registration on then reads metric depth.
+They run right after ingest when the effect ``depth_scale_offset`` is modelled. One sensor made
+both recordings, so the error found from the static sweep (whose frames see the room from many
+places) corrects the dynamic recording too; every later stage, the 3DGS included, then reads
+metric depth, so the Gaussians and the joints fitted to the tracks share one geometry.
 """
 
 from __future__ import annotations

@@ -88,11 +88,11 @@ class _Recorder:
     """An executor that runs nothing: each handle is the stage/label that made it."""
 
     def __init__(self):
-        self.calls = {}
+        self.calls, self.configs = {}, {}
 
     def submit(self, stage_name, config, inputs, label):
         handle = f"{stage_name}/{label}"
-        self.calls[handle] = inputs
+        self.calls[handle], self.configs[handle] = inputs, config
         return handle
 
     def result(self, handle):
@@ -113,7 +113,8 @@ def test_pipeline_routes_later_stages_through_the_calibration_when_modelled(tmp_
     for name in ("track/dynamic", "joint_states/dynamic", "predict_dynamic/dynamic"):
         assert ex.calls[name]["dynamic"] == "calibrate_depth/dynamic", name
     assert ex.calls["articulate/scene"]["static"] == "calibrate_depth/static"
-    # The 3DGS learns the sensor's error itself, and the static diagnosis compares the depth as measured.
-    assert ex.calls["reconstruct/static"]["capture"] == "ingest/static"
-    assert ex.calls["predict_views/static"]["capture"] == "ingest/static"
-    assert ex.calls["diagnose/scene"]["capture"] == "ingest/static"
+    # Stage I too: the Gaussians start on metric depth, as the joints do.
+    for name in ("refine_poses/static", "reconstruct/static", "predict_views/static", "diagnose/scene"):
+        assert ex.calls[name]["capture"] == "calibrate_depth/static", name
+    # ... and it is not asked to learn the corrected error again.
+    assert "depth_scale_offset" not in ex.configs["reconstruct/static"].sensor_effects
