@@ -36,7 +36,7 @@ the lag the diagnosis fits): the states are moved to the RGB exposures' times.
 ``--depth-calibration SCALE,OFFSET_M`` corrects both recordings' depth to ``(measured - OFFSET_M) /
 SCALE`` before registration; ``--depth-calibration estimate`` models the effect ``depth_scale_offset``
 as the pipeline does (the ``depth_calibration`` stage's ``estimate_depth_calibration`` on the static
-recording, applied to both).
+recording, applied to both unless its standard error is over the stage's ``max_error_se_m``).
 """
 
 from __future__ import annotations
@@ -70,6 +70,7 @@ from artitwin_core.reconstruction import PoseRefineConfig, refine_poses  # noqa:
 from artitwin_core.registration import RegistrationConfig, register_recordings  # noqa: E402
 from artitwin_core.synth import BENCHMARK_SCENES, generate_scene  # noqa: E402
 from artitwin_core.tracking import TrackingConfig, Trajectories, track_part_points  # noqa: E402
+from schemas import DepthCalibrationConfig  # noqa: E402
 
 DEFAULT_SCENES = list(BENCHMARK_SCENES)
 GRAVITY = (0.0, -1.0, 0.0)
@@ -218,14 +219,17 @@ def bench_scene(
     if depth_calibration is not None:  # the effect depth_scale_offset, as the calibrate_depth stage models it
         from dataclasses import replace
 
+        applied = True
         if depth_calibration == "estimate":
             found = estimate_depth_calibration(scene.static)
             scale, offset = found.scale, found.offset_m
+            applied = found.error_se_m <= DepthCalibrationConfig().max_error_se_m  # as the stage decides
         else:
             scale, offset = depth_calibration
-        calibration = (scale, offset)
-        scene = replace(scene, static=calibrate_depth(scene.static, scale, offset),
-                        dynamic=calibrate_depth(scene.dynamic, scale, offset))
+        calibration = (scale, offset, applied)
+        if applied:
+            scene = replace(scene, static=calibrate_depth(scene.static, scale, offset),
+                            dynamic=calibrate_depth(scene.dynamic, scale, offset))
     d, truth = scene.dynamic, scene.truth
     up = _cached_upstream(name, cache) if cache is not None else _pipeline_upstream(name, scene, static_poses)
     masks = up["masks"]
@@ -234,7 +238,8 @@ def bench_scene(
     for k, joint_true in enumerate(truth.joints):
         row = {
             "scene": name,
-            "depth_calibration": "" if calibration is None else f"{calibration[0]:.4f} z + {1e3 * calibration[1]:.1f} mm",
+            "depth_calibration": "" if calibration is None else (
+                f"{calibration[0]:.4f} z + {1e3 * calibration[1]:.1f} mm" + ("" if calibration[2] else " (not applied)")),
             "part": k,
             "joint_true": joint_true.joint_type,
             "frames": d.num_frames,

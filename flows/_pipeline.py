@@ -178,7 +178,11 @@ def build_summary(
             entry["canonical_from_session"] = reg.canonical_from_session.tolist()
         elif run.kind == DepthCalibrationResult.kind:
             cal = store.get(run.key, DepthCalibrationResult)
-            entry["metrics"] = {"depth_scale": cal.scale, "depth_offset_m": cal.offset_m, "residual_m": cal.residual_m}
+            entry["metrics"] = {
+                "depth_scale": cal.scale, "depth_offset_m": cal.offset_m, "residual_m": cal.residual_m,
+                "depth_error_se_m": _finite(cal.error_se_m), "applied": float(cal.applied),
+            }
+            entry["notes"] = [cal.note] if cal.note else []
         elif run.kind == DiagnosisReport.kind:
             report = store.get(run.key, DiagnosisReport)
             entry["metrics"] = {k: _finite(v) for k, v in report.metrics.items()}

@@ -99,6 +99,16 @@ class DepthCalibrationResult(Artifact):
     residual_m: float = Field(description="Robust spread of the frames' point-to-plane disagreement after calibration, metres.")
     points_count: int = Field(description="Point pairs in the final fit.")
     method: str = Field(description="How it was found, e.g. 'multi-view-depth-consistency'.")
+    scale_se: float = Field(default=float("nan"), description="Standard error of scale (frame-block jackknife); NaN if unknown.")
+    offset_m_se: float = Field(default=float("nan"), description="Standard error of offset_m, metres; NaN if unknown.")
+    reference_depth_m: float = Field(default=float("nan"), description="Median depth of the points fitted, metres.")
+    error_se_m: float = Field(
+        default=float("nan"), description="Standard error of the depth error (scale - 1) z + offset at reference_depth_m, metres."
+    )
+    applied: bool = Field(
+        default=True, description="Whether calibrate_depth corrects the depth with it (False: too uncertain or implausible)."
+    )
+    note: str = Field(default="", description="Why it is not applied, in words; empty when it is.")
 
 
 # ----------------------------------------------------------------------------------------------

@@ -69,11 +69,13 @@ class DepthCalibrationConfig(StageConfig):
     )
     max_depth_m: float = Field(default=4.5, gt=0, description="Depth beyond this is not used, metres.")
     max_scale_error: float = Field(
-        default=0.2, gt=0, le=1,
-        description="An estimated scale further than this from 1 is not applied: the stage fails and names it.",
+        default=0.2, gt=0, le=1, description="An estimated scale further than this from 1 is implausible and not applied."
     )
-    max_offset_m: float = Field(
-        default=0.2, gt=0, description="An estimated offset larger than this (metres) is not applied: the stage fails and names it."
+    max_offset_m: float = Field(default=0.2, gt=0, description="An estimated offset larger than this (metres) is implausible and not applied.")
+    max_error_se_m: float = Field(
+        default=0.01, gt=0,
+        description="The estimate is applied only when the standard error of the depth error it implies at the recording's "
+        "median depth is at most this (metres): drifting or jittering poses make it uncertain, and then wrong.",
     )
 
 

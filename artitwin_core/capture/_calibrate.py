@@ -59,6 +59,9 @@ class DepthCalibrationConfig:
         edge_m: a projected point whose four neighbouring depths span more than this lies on a
             depth edge and is not used.
         iterations: re-associations (each a weighted least-squares solve).
+        jackknife_blocks: the standard errors come from leaving out this many blocks of
+            consecutive frames in turn (a frame's points share its pose and depth-map errors, so
+            points are not independent).
     """
 
     frame_gaps: tuple[int, ...] = (2, 4, 8)
@@ -67,6 +70,7 @@ class DepthCalibrationConfig:
     min_facing_cos: float = 0.5
     edge_m: float = 0.02
     iterations: int = 8
+    jackknife_blocks: int = 8
 
 
 @dataclass(frozen=True)
@@ -77,12 +81,22 @@ class DepthCalibration:
         scale, offset_m: the error (1 and 0 for an ideal sensor).
         residual_m: robust spread (1.4826 MAD) of the frames' disagreement after calibration.
         points: point pairs in the final solve.
+        scale_se, offset_m_se: standard errors of ``scale`` and ``offset_m`` (frame-block
+            jackknife); NaN with fewer than 3 blocks.
+        reference_depth_m: median depth of the points used.
+        error_se_m: standard error of the depth error ``(scale - 1) z + offset_m`` at that depth
+            (the two estimates are strongly anti-correlated, so it is far below what their
+            separate standard errors suggest where the data are).
     """
 
     scale: float
     offset_m: float
     residual_m: float
     points: int
+    scale_se: float = float("nan")
+    offset_m_se: float = float("nan")
+    reference_depth_m: float = float("nan")
+    error_se_m: float = float("nan")
 
 
 def _normals(z: np.ndarray, k: np.ndarray) -> np.ndarray:
@@ -100,7 +114,8 @@ def _normals(z: np.ndarray, k: np.ndarray) -> np.ndarray:
 
 def _pair_terms(capture: Capture, poses: np.ndarray, i: int, j: int, a: float, b: float, cfg: DepthCalibrationConfig):
     """Point-to-plane terms of frame ``i``'s depth against frame ``j``'s at the current
-    calibration ``true = a * measured + b``: ``(c0, ca, cb)`` with residual ``c0 + a ca + b cb``."""
+    calibration ``true = a * measured + b``: ``(c0, ca, cb, depth)`` with residual ``c0 + a ca + b
+    cb``, and the measured depths of the points of frame ``i``."""
     ki, kj = np.asarray(capture.depth_intrinsics[i], np.float64), np.asarray(capture.depth_intrinsics[j], np.float64)
     h, w = capture.depth.shape[1:]
     st = cfg.pixel_stride
@@ -136,7 +151,7 @@ def _pair_terms(capture: Capture, poses: np.ndarray, i: int, j: int, a: float, b
     c0 = n @ (ci - cj)
     ca = np.sum(n * (di[idx, None] * ray_i[idx] - dj[good, None] * ray_j), 1)
     cb = np.sum(n * (ray_i[idx] - ray_j), 1)
-    return c0, ca, cb
+    return c0, ca, cb, di[idx]
 
 
 def estimate_depth_calibration(
@@ -174,11 +189,14 @@ def estimate_depth_calibration(
             "record a longer sweep, or lower the frame gaps."
         )
     a, b, spread, count = 1.0, 0.0, float("nan"), 0
+    blocks = config.jackknife_blocks
     for _ in range(config.iterations):
         terms = [_pair_terms(capture, poses, i, j, a, b, config) for i, j in pairs]
+        block = np.concatenate([np.full(len(t[0]), (i * blocks) // t_count) for t, (i, _) in zip(terms, pairs, strict=True)])
         c0 = np.concatenate([t[0] for t in terms])
         ca = np.concatenate([t[1] for t in terms])
         cb = np.concatenate([t[2] for t in terms])
+        depths = np.concatenate([t[3] for t in terms])
         if len(c0) < 100:
             raise InputError(
                 f"estimate_depth_calibration: only {len(c0)} points of the recording's frames overlap; the depth "
@@ -198,4 +216,25 @@ def estimate_depth_calibration(
         s_new, ba_new = np.linalg.solve(hess, -(x * wts[:, None]).T @ ca)
         a, b = 1.0 / s_new, ba_new / s_new
         count = int(np.count_nonzero(wts > 0))
-    return DepthCalibration(scale=float(1.0 / a), offset_m=float(-b / a), residual_m=spread, points=count)
+    # Jackknife over blocks of frames, at the last association and weights.
+    drops = []
+    for k in np.unique(block):
+        keep = block != k
+        xk, wk = x[keep], wts[keep]
+        hk = (xk * wk[:, None]).T @ xk
+        if np.linalg.cond(hk) < 1e12:
+            sk, bak = np.linalg.solve(hk, -(xk * wk[:, None]).T @ ca[keep])
+            drops.append((sk, -bak))  # the unknowns are (s, b / a) and the offset is -b / a
+    scale_se = offset_se = error_se = float("nan")
+    z_ref = float(np.median(depths[wts > 0])) if np.any(wts > 0) else float("nan")
+    if len(drops) >= 3:
+        d = np.asarray(drops)
+        n = len(d)
+        cov = (n - 1) / n * (d - d.mean(0)).T @ (d - d.mean(0))
+        scale_se, offset_se = float(np.sqrt(cov[0, 0])), float(np.sqrt(cov[1, 1]))
+        grad = np.array([z_ref, 1.0])
+        error_se = float(np.sqrt(max(grad @ cov @ grad, 0.0)))
+    return DepthCalibration(
+        scale=float(1.0 / a), offset_m=float(-b / a), residual_m=spread, points=count,
+        scale_se=scale_se, offset_m_se=offset_se, reference_depth_m=z_ref, error_se_m=error_se,
+    )

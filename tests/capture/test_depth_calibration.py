@@ -80,8 +80,23 @@ def test_stages_estimate_on_the_static_recording_and_correct_either(doors):
     err = np.abs(fixed.depth[ok] - clean.dynamic.depth[ok])
     assert np.median(err) < 0.004 and np.median(np.abs(dynamic.depth[ok] - clean.dynamic.depth[ok])) > 0.05
     np.testing.assert_array_equal(fixed.world_from_camera, dynamic.world_from_camera)
-    with pytest.raises(InputError, match="depth_calibration.max_scale_error"):
-        estimate_capture_depth_calibration(static, StageConfig(max_scale_error=0.01))
+    assert cal.applied and not cal.note and cal.error_se_m < 0.002
+    # An implausible or uncertain estimate is kept but not applied, and says why.
+    for cfg, words in ((StageConfig(max_scale_error=0.01), "max_scale_error"),
+                       (StageConfig(max_error_se_m=1e-5), "max_error_se_m")):
+        held = estimate_capture_depth_calibration(static, cfg)
+        assert not held.applied and words in held.note and "static.r3d" in held.note
+        assert calibrate_capture_depth(dynamic, held, cfg).equals(dynamic)
+
+
+def test_jittering_poses_make_the_estimate_uncertain_and_it_is_not_applied():
+    """high-noise's static poses jitter by 3 mm / 3 mrad: the fit's 1.7 cm at 1.7 m is wrong (the
+    sensor has no bias), and its standard error says so."""
+    scene = generate_scene(BENCHMARK_SCENES["high-noise"])
+    cal = estimate_capture_depth_calibration(to_artifact(CaptureArtifact, scene.static), StageConfig())
+    err = (cal.scale - 1.0) * cal.reference_depth_m + cal.offset_m
+    assert abs(err) < 3 * cal.error_se_m  # the error is within what the standard error admits
+    assert cal.error_se_m > 0.01 and not cal.applied and "uncertain" in cal.note
 
 
 class _Recorder:
