@@ -68,6 +68,9 @@ class DepthCalibrationConfig(StageConfig):
         default=(2, 4, 8), min_length=1, description="Each static frame's depth is compared with the frames this many later."
     )
     max_depth_m: float = Field(default=4.5, gt=0, description="Depth beyond this is not used, metres.")
+    min_confidence: int = Field(
+        default=1, ge=0, le=2, description="Depth whose ARKit confidence is below this (0 low, 1 medium, 2 high) is not used."
+    )
     max_scale_error: float = Field(
         default=0.2, gt=0, le=1, description="An estimated scale further than this from 1 is implausible and not applied."
     )

@@ -30,7 +30,10 @@ def estimate_capture_depth_calibration(capture: CaptureArtifact, config: DepthCa
             one viewing distance).
     """
     cal = estimate_depth_calibration(
-        to_core(Capture, capture), config=CoreConfig(frame_gaps=tuple(config.frame_gaps), max_depth_m=config.max_depth_m)
+        to_core(Capture, capture),
+        config=CoreConfig(
+            frame_gaps=tuple(config.frame_gaps), max_depth_m=config.max_depth_m, min_confidence=config.min_confidence
+        ),
     )
     where = capture.source_path or "the static recording"
     note = ""

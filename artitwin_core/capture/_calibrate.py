@@ -54,6 +54,8 @@ class DepthCalibrationConfig:
         frame_gaps: each frame is compared with the frames this many frames later.
         pixel_stride: every n-th depth pixel each way is used.
         max_depth_m: depth beyond this is not used.
+        min_confidence: depth whose ARKit confidence (0 low, 1 medium, 2 high) is below this is
+            not used, in either frame of a pair (0 uses all; captures without confidence use all).
         min_facing_cos: surfaces seen more obliquely than this (cosine of the angle between the
             surface normal and the viewing ray) are not used: their depth is the least certain.
         edge_m: a projected point whose four neighbouring depths span more than this lies on a
@@ -67,6 +69,7 @@ class DepthCalibrationConfig:
     frame_gaps: tuple[int, ...] = (2, 4, 8)
     pixel_stride: int = 2
     max_depth_m: float = 4.5
+    min_confidence: int = 1
     min_facing_cos: float = 0.5
     edge_m: float = 0.02
     iterations: int = 8
@@ -122,6 +125,9 @@ def _pair_terms(capture: Capture, poses: np.ndarray, i: int, j: int, a: float, b
     v, u = np.mgrid[0:h:st, 0:w:st]
     di = np.asarray(capture.depth[i], np.float64)[::st, ::st]
     ok = np.isfinite(di) & (di > 0) & (di < cfg.max_depth_m)
+    conf = capture.confidence if capture.confidence is not None and cfg.min_confidence > 0 else None
+    if conf is not None:
+        ok &= np.asarray(conf[i])[::st, ::st] >= cfg.min_confidence
     u, v, di = u[ok].astype(np.float64), v[ok].astype(np.float64), di[ok]
     ri, ci = poses[i][:3, :3], poses[i][:3, 3]
     rj, cj = poses[j][:3, :3], poses[j][:3, 3]
@@ -133,6 +139,8 @@ def _pair_terms(capture: Capture, poses: np.ndarray, i: int, j: int, a: float, b
     inb = (z > 0.1) & (uj >= 2) & (uj < w - 3) & (vj >= 2) & (vj < h - 3)
     uu, vv = uj[inb], vj[inb]
     dj_map = np.asarray(capture.depth[j], np.float64)
+    if conf is not None:
+        dj_map = np.where(np.asarray(conf[j]) >= cfg.min_confidence, dj_map, np.nan)  # NaN drops the sample
     u0, v0 = np.floor(uu).astype(int), np.floor(vv).astype(int)
     fu, fv = uu - u0, vv - v0
     q = np.stack([dj_map[v0, u0], dj_map[v0, u0 + 1], dj_map[v0 + 1, u0], dj_map[v0 + 1, u0 + 1]], 1)

@@ -66,6 +66,11 @@ def test_bad_calibration_input_is_named(doors):
                                      "world_from_camera", "timestamps", "frame_ids")})
     with pytest.raises(InputError, match="no frame pairs"):
         estimate_depth_calibration(two, config=DepthCalibrationConfig(frame_gaps=(4,)))
+    # Low-confidence depth is not used: with every pixel marked low, nothing overlaps.
+    low = replace(biased.static, confidence=np.zeros_like(biased.static.confidence))
+    with pytest.raises(InputError, match="points of the recording's frames overlap"):
+        estimate_depth_calibration(low)
+    assert estimate_depth_calibration(low, config=DepthCalibrationConfig(min_confidence=0)).points > 1000
 
 
 def test_stages_estimate_on_the_static_recording_and_correct_either(doors):
