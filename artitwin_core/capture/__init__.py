@@ -13,6 +13,7 @@ from artitwin_core.capture._calibrate import (
 )
 from artitwin_core.capture._common import depth_intrinsics_from_rgb, scale_intrinsics
 from artitwin_core.capture._detect import FORMATS, detect_format, read_capture, recording_files
+from artitwin_core.capture._drift import DriftSignificance, PoseDrift
 from artitwin_core.capture._nerfstudio import read_nerfstudio, write_nerfstudio
 from artitwin_core.capture._options import ReadOptions
 from artitwin_core.capture._r3d import read_r3d, write_r3d
@@ -26,6 +27,8 @@ __all__ = [
     "Capture",
     "DepthCalibration",
     "DepthCalibrationConfig",
+    "DriftSignificance",
+    "PoseDrift",
     "ReadOptions",
     "SceneRecordings",
     "calibrate_depth",

@@ -20,6 +20,16 @@ import cv2
 import numpy as np
 
 from artitwin_core._errors import InputError
+from artitwin_core.capture._drift import (
+    DriftSignificance,
+    FeatureCache,
+    PoseDrift,
+    depth_at_pixels,
+    drift_significance,
+    pixel_rays,
+    ray_normals,
+    sift_matches,
+)
 from artitwin_core.capture._types import Capture
 
 
@@ -64,6 +74,13 @@ class DepthCalibrationConfig:
         jackknife_blocks: the standard errors come from leaving out this many blocks of
             consecutive frames in turn (a frame's points share its pose and depth-map errors, so
             points are not independent).
+        estimate_depth: fit the depth error (False: take the depth as metric and fit the drift
+            alone).
+        pose_drift: fit the poses' linear drift (a turn about ``gravity`` and a translation, both
+            growing with time from the first frame) with the depth error. Drift bends the frames'
+            agreement as a depth error does, so the two are fitted together; SIFT matches between
+            frames (``feature_gaps`` apart) fix the drift along surfaces, where depth is blind.
+        gravity: direction of gravity in the recording's world frame.
     """
 
     frame_gaps: tuple[int, ...] = (2, 4, 8)
@@ -74,6 +91,10 @@ class DepthCalibrationConfig:
     edge_m: float = 0.02
     iterations: int = 8
     jackknife_blocks: int = 8
+    estimate_depth: bool = True
+    pose_drift: bool = False
+    gravity: tuple[float, float, float] = (0.0, -1.0, 0.0)
+    feature_gaps: tuple[int, ...] = (2, 4, 8, 16)
 
 
 @dataclass(frozen=True)
@@ -90,6 +111,9 @@ class DepthCalibration:
         error_se_m: standard error of the depth error ``(scale - 1) z + offset_m`` at that depth
             (the two estimates are strongly anti-correlated, so it is far below what their
             separate standard errors suggest where the data are).
+        drift: the poses' fitted drift (``config.pose_drift``), None when not modelled.
+        drift_significance: how far its rate moves a point at ``reference_depth_m`` ahead of the
+            first camera by the last frame, with standard errors.
     """
 
     scale: float
@@ -100,6 +124,8 @@ class DepthCalibration:
     offset_m_se: float = float("nan")
     reference_depth_m: float = float("nan")
     error_se_m: float = float("nan")
+    drift: PoseDrift | None = None
+    drift_significance: DriftSignificance | None = None
 
 
 def _normals(z: np.ndarray, k: np.ndarray) -> np.ndarray:
@@ -117,8 +143,9 @@ def _normals(z: np.ndarray, k: np.ndarray) -> np.ndarray:
 
 def _pair_terms(capture: Capture, poses: np.ndarray, i: int, j: int, a: float, b: float, cfg: DepthCalibrationConfig):
     """Point-to-plane terms of frame ``i``'s depth against frame ``j``'s at the current
-    calibration ``true = a * measured + b``: ``(c0, ca, cb, depth)`` with residual ``c0 + a ca + b
-    cb``, and the measured depths of the points of frame ``i``."""
+    calibration ``true = a * measured + b``: ``(c0, ca, cb, depth, points, normals)`` with residual
+    ``c0 + a ca + b cb``, the measured depths of the points of frame ``i``, the points ``[N, 3]`` in
+    the world and frame ``j``'s surface normals ``[N, 3]`` there."""
     ki, kj = np.asarray(capture.depth_intrinsics[i], np.float64), np.asarray(capture.depth_intrinsics[j], np.float64)
     h, w = capture.depth.shape[1:]
     st = cfg.pixel_stride
@@ -159,13 +186,39 @@ def _pair_terms(capture: Capture, poses: np.ndarray, i: int, j: int, a: float, b
     c0 = n @ (ci - cj)
     ca = np.sum(n * (di[idx, None] * ray_i[idx] - dj[good, None] * ray_j), 1)
     cb = np.sum(n * (ray_i[idx] - ray_j), 1)
-    return c0, ca, cb, di[idx]
+    points = ci + (a * di[idx] + b)[:, None] * ray_i[idx]
+    return c0, ca, cb, di[idx], points, n
+
+
+
+
+def _feature_terms(
+    capture: Capture, poses: np.ndarray, i: int, j: int, pi: np.ndarray, pj: np.ndarray, a: float, b: float,
+    cfg: DepthCalibrationConfig,
+):
+    """Reprojection terms of matched pixels ``pi`` (frame ``i``, lifted by its depth) against the
+    rays of ``pj`` (frame ``j``): the point's distance from the ray in two directions across it,
+    ``c0 + a ca + b cb`` as in :func:`_pair_terms`; with the points and the directions."""
+    d = depth_at_pixels(capture, i, pi, cfg.edge_m, cfg.min_confidence)
+    ok = np.isfinite(d) & (d > 0) & (d < cfg.max_depth_m)
+    if not np.any(ok):
+        return None
+    pi, pj, d = pi[ok], pj[ok], d[ok]
+    ci, cj = poses[i][:3, 3], poses[j][:3, 3]
+    ray_i = pixel_rays(capture.rgb_intrinsics[i], pi, poses[i])
+    ray_j = pixel_rays(capture.rgb_intrinsics[j], pj, poses[j])
+    points = ci + (a * d + b)[:, None] * ray_i
+    out = []
+    for m in ray_normals(ray_j):
+        out.append((m @ (ci - cj), d * np.sum(m * ray_i, 1), np.sum(m * ray_i, 1), d, points, m))
+    return tuple(np.concatenate([o[k] for o in out]) for k in range(6))
 
 
 def estimate_depth_calibration(
     capture: Capture, world_from_camera: np.ndarray | None = None, config: DepthCalibrationConfig = DepthCalibrationConfig()
 ) -> DepthCalibration:
-    """The sensor's depth error, from how its frames' depth disagree at their poses.
+    """The sensor's depth error, from how its frames' depth disagree at their poses; with
+    ``config.pose_drift``, the poses' linear drift with it.
 
     Each frame's depth, placed in the world by its pose, should lie on the surfaces the other
     frames' depth shows. A depth error ``measured = s * true + o`` moves every surface along each
@@ -179,6 +232,12 @@ def estimate_depth_calibration(
     depth noise at 2 m, solving for ``(a, b)`` directly made an exact sensor look 2 % long).
     Tukey weights drop occlusions and moved objects; the association is redone at each estimate.
 
+    A drift (``config.pose_drift``) adds four unknowns, the yaw rate about gravity and the
+    translation rate, linearised about the current poses (each frame's correction moves a point
+    ``X`` by ``dt (w x (X - pivot) + v)`` relative to the other frame's). Depth alone cannot see
+    a drift along a wall, so SIFT matches between frames add reprojection terms of the same form
+    (a lifted keypoint's distance from its match's ray).
+
     The poses must be metric and locally consistent (a recording's own ARKit poses); their errors
     bias the result (3 mm / 3 mrad of jitter per frame: about 1 % of scale).
 
@@ -186,63 +245,144 @@ def estimate_depth_calibration(
         InputError: too few frames or overlapping points to estimate anything, or poses of the
             wrong shape.
     """
+    cal = _estimate(capture, world_from_camera, config)
+    if cal.drift is None or capture.num_frames < 2 * max(config.frame_gaps) + 2:
+        return cal
+    # The drift seen by each half of the recording alone: a linear drift is the same in both.
     poses = np.asarray(capture.world_from_camera if world_from_camera is None else world_from_camera, np.float64)
+    half = capture.num_frames // 2
+    rates = []
+    for part in (slice(0, half), slice(half, None)):
+        try:
+            fit = _estimate(capture.select_frames(part), poses[part], config)
+        except InputError:
+            return cal  # too little overlap within a half: the check is skipped
+        rates.append(fit.drift.rate_at(cal.drift_significance.point))
+    return dataclasses.replace(
+        cal, drift_significance=dataclasses.replace(cal.drift_significance, half_rates_m_per_s=np.stack(rates))
+    )
+
+
+def _estimate(capture: Capture, world_from_camera: np.ndarray | None, config: DepthCalibrationConfig) -> DepthCalibration:
+    recorded = np.asarray(capture.world_from_camera if world_from_camera is None else world_from_camera, np.float64)
     t_count = capture.num_frames
-    if poses.shape != (t_count, 4, 4):
-        raise InputError(f"estimate_depth_calibration: poses have shape {poses.shape}; expected ({t_count}, 4, 4).")
+    if recorded.shape != (t_count, 4, 4):
+        raise InputError(f"estimate_depth_calibration: poses have shape {recorded.shape}; expected ({t_count}, 4, 4).")
+    if not (config.estimate_depth or config.pose_drift):
+        raise InputError("estimate_depth_calibration: nothing to estimate (estimate_depth and pose_drift both off).")
     pairs = [(i, i + g) for g in config.frame_gaps for i in range(t_count) if i + g < t_count]
     if not pairs:
         raise InputError(
             f"estimate_depth_calibration: a recording of {t_count} frames has no frame pairs {config.frame_gaps} apart; "
             "record a longer sweep, or lower the frame gaps."
         )
+    ts = np.asarray(capture.timestamps, np.float64)
+    gravity = np.asarray(config.gravity, np.float64)
+    gravity = gravity / np.linalg.norm(gravity)
+    drift = PoseDrift(pivot=recorded[0, :3, 3].copy(), t0_s=float(ts[0])) if config.pose_drift else None
+    matches = {}
+    if config.pose_drift:
+        if ts[-1] - ts[0] <= 0:
+            raise InputError("estimate_depth_calibration: the pose drift needs increasing timestamps; they span 0 s.")
+        features = FeatureCache(capture.rgb)
+        for g in config.feature_gaps:
+            for i in range(t_count - g):
+                pi, pj = sift_matches(features(i), features(i + g))
+                if len(pi):
+                    matches[(i, i + g)] = (pi, pj)
+    n_depth = 2 if config.estimate_depth else 0
     a, b, spread, count = 1.0, 0.0, float("nan"), 0
     blocks = config.jackknife_blocks
     for _ in range(config.iterations):
-        terms = [_pair_terms(capture, poses, i, j, a, b, config) for i, j in pairs]
-        block = np.concatenate([np.full(len(t[0]), (i * blocks) // t_count) for t, (i, _) in zip(terms, pairs, strict=True)])
-        c0 = np.concatenate([t[0] for t in terms])
-        ca = np.concatenate([t[1] for t in terms])
-        cb = np.concatenate([t[2] for t in terms])
-        depths = np.concatenate([t[3] for t in terms])
-        if len(c0) < 100:
-            raise InputError(
-                f"estimate_depth_calibration: only {len(c0)} points of the recording's frames overlap; the depth "
-                "calibration needs frames that see the same surfaces from different places."
-            )
-        x = np.stack([c0, cb], 1)
-        s_cur, ba_cur = 1.0 / a, b / a
-        r = x @ np.array([s_cur, ba_cur]) + ca
-        spread = float(1.4826 * np.median(np.abs(r))) + 1e-9
-        wts = np.clip(1.0 - (r / (4.685 * spread)) ** 2, 0.0, 1.0) ** 2
-        hess = (x * wts[:, None]).T @ x
-        if np.linalg.cond(hess) > 1e12:
+        poses = drift.apply(recorded, ts) if drift is not None else recorded
+        sources = [([_pair_terms(capture, poses, i, j, a, b, config) for i, j in pairs], pairs)]
+        if matches:
+            found = [(_feature_terms(capture, poses, i, j, pi, pj, a, b, config), (i, j)) for (i, j), (pi, pj) in matches.items()]
+            found = [(t, p) for t, p in found if t is not None]
+            sources.append(([t for t, _ in found], [p for _, p in found]))
+        hess, grad, rows = 0.0, 0.0, []
+        if len(sources) == 2 and sum(len(t[0]) for t in sources[1][0]) < 100:
+            sources.pop()  # too few keypoint terms to weigh robustly: depth alone
+        for terms, which in sources:
+            c0, ca, cb, depths, points, normals = (np.concatenate([t[k] for t in terms]) for k in range(6))
+            if len(c0) < 100 and not rows:
+                raise InputError(
+                    f"estimate_depth_calibration: only {len(c0)} points of the recording's frames overlap; the depth "
+                    "calibration needs frames that see the same surfaces from different places."
+                )
+            dt = np.concatenate([np.full(len(t[0]), ts[i] - ts[j]) for t, (i, j) in zip(terms, which, strict=True)])
+            block = np.concatenate([np.full(len(t[0]), (i * blocks) // t_count) for t, (i, _) in zip(terms, which, strict=True)])
+            cols = []
+            if config.estimate_depth:
+                cols += [c0, cb]
+                rhs = ca
+                cur = [1.0 / a, b / a]
+            else:
+                rhs = c0 / a + ca + (b / a) * cb
+                cur = []
+            if drift is not None:
+                rel = points - drift.pivot
+                cols += [dt * (np.cross(rel, normals) @ gravity)] + [dt * normals[:, k] for k in range(3)]
+                cur += [0.0] * 4
+            x = np.stack(cols, 1)
+            r = x @ np.asarray(cur) + rhs
+            src_spread = float(1.4826 * np.median(np.abs(r))) + 1e-9
+            if not rows:
+                spread = src_spread  # the depth terms' spread: the residual reported
+            wts = np.clip(1.0 - (r / (4.685 * src_spread)) ** 2, 0.0, 1.0) ** 2 / src_spread**2
+            hess = hess + (x * wts[:, None]).T @ x
+            grad = grad + (x * wts[:, None]).T @ rhs
+            rows.append((x, wts, rhs, block, depths))
+        if config.estimate_depth and np.linalg.cond(hess[:2, :2]) > 1e12:
             raise InputError(
                 "estimate_depth_calibration: the frames' viewpoints do not separate a depth scale from an offset "
                 "(all surfaces seen from one distance); record the scene from nearer and farther."
             )
-        s_new, ba_new = np.linalg.solve(hess, -(x * wts[:, None]).T @ ca)
-        a, b = 1.0 / s_new, ba_new / s_new
-        count = int(np.count_nonzero(wts > 0))
-    # Jackknife over blocks of frames, at the last association and weights.
+        sol = np.linalg.solve(hess, -grad)
+        if config.estimate_depth:
+            a, b = 1.0 / sol[0], sol[1] / sol[0]
+        if drift is not None:
+            step = a * sol[n_depth:]
+            drift = PoseDrift(
+                pivot=drift.pivot, t0_s=drift.t0_s,
+                rot_rate_rad_per_s=drift.rot_rate_rad_per_s + step[0] * gravity,
+                trans_rate_m_per_s=drift.trans_rate_m_per_s + step[1:4],
+            )
+        count = int(sum(np.count_nonzero(w > 0) for _, w, _, _, _ in rows))
+    # Jackknife over blocks of frames, at the last association and weights (the solution there is
+    # the last step; each drop's is compared with it).
+    x_all = np.concatenate([r[0] for r in rows])
+    w_all = np.concatenate([r[1] for r in rows])
+    rhs_all = np.concatenate([r[2] for r in rows])
+    block_all = np.concatenate([r[3] for r in rows])
     drops = []
-    for k in np.unique(block):
-        keep = block != k
-        xk, wk = x[keep], wts[keep]
-        hk = (xk * wk[:, None]).T @ xk
+    for k in np.unique(block_all):
+        keep = block_all != k
+        hk = (x_all[keep] * w_all[keep, None]).T @ x_all[keep]
         if np.linalg.cond(hk) < 1e12:
-            sk, bak = np.linalg.solve(hk, -(xk * wk[:, None]).T @ ca[keep])
-            drops.append((sk, -bak))  # the unknowns are (s, b / a) and the offset is -b / a
+            drops.append(np.linalg.solve(hk, -(x_all[keep] * w_all[keep, None]).T @ rhs_all[keep]))
+    depths = rows[0][4][rows[0][1] > 0]
+    z_ref = float(np.median(depths)) if len(depths) else float("nan")
     scale_se = offset_se = error_se = float("nan")
-    z_ref = float(np.median(depths[wts > 0])) if np.any(wts > 0) else float("nan")
+    rate_cov = None
     if len(drops) >= 3:
         d = np.asarray(drops)
         n = len(d)
         cov = (n - 1) / n * (d - d.mean(0)).T @ (d - d.mean(0))
-        scale_se, offset_se = float(np.sqrt(cov[0, 0])), float(np.sqrt(cov[1, 1]))
-        grad = np.array([z_ref, 1.0])
-        error_se = float(np.sqrt(max(grad @ cov @ grad, 0.0)))
+        if config.estimate_depth:
+            # the unknowns are (s, b / a) and the offset is -b / a
+            scale_se, offset_se = float(np.sqrt(cov[0, 0])), float(np.sqrt(cov[1, 1]))
+            grad_e = np.array([z_ref, -1.0])
+            error_se = float(np.sqrt(max(grad_e @ cov[:2, :2] @ grad_e, 0.0)))
+        if drift is not None:
+            rate_cov = a**2 * cov[n_depth:, n_depth:]
+    significance = None
+    if drift is not None:
+        ahead = recorded[0, :3, 3] + (z_ref if np.isfinite(z_ref) else 2.0) * recorded[0, :3, 2]
+        significance = drift_significance(drift, ahead, float(ts[-1]), rate_cov, yaw_axis=gravity)
     return DepthCalibration(
         scale=float(1.0 / a), offset_m=float(-b / a), residual_m=spread, points=count,
         scale_se=scale_se, offset_m_se=offset_se, reference_depth_m=z_ref, error_se_m=error_se,
+        drift=drift, drift_significance=significance,
     )
+

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import dataclasses
 from dataclasses import dataclass
 
 import numpy as np
@@ -53,6 +54,16 @@ class Capture:
     def depth_size(self) -> tuple[int, int]:
         """``(width, height)`` of the depth maps in pixels."""
         return int(self.depth.shape[2]), int(self.depth.shape[1])
+
+    def select_frames(self, index) -> Capture:
+        """The recording restricted to the frames ``index`` (a slice or indices), in that order."""
+        idx = np.arange(self.num_frames)[index]
+        return dataclasses.replace(
+            self, rgb=self.rgb[idx], depth=self.depth[idx],
+            confidence=None if self.confidence is None else self.confidence[idx],
+            rgb_intrinsics=self.rgb_intrinsics[idx], depth_intrinsics=self.depth_intrinsics[idx],
+            world_from_camera=self.world_from_camera[idx], timestamps=self.timestamps[idx], frame_ids=self.frame_ids[idx],
+        )
 
 
 def intrinsics_matrix(fx_fy_cx_cy: np.ndarray) -> np.ndarray:
