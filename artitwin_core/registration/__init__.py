@@ -3,17 +3,22 @@
 ``register_recordings(static, dynamic, gravity=...)`` -> :class:`RegistrationResult`: a yaw sweep
 about the shared gravity with correlation for the translation, robust coarse-to-fine
 point-to-plane ICP, then coloured ICP. ``fused_cloud`` and ``frame_points`` turn a capture's depth
-into points, for the other stages that need them.
+into points, for the other stages that need them. ``estimate_session_drift`` fits a recording's
+linear pose drift against the canonical model, once its moving parts are masked.
 """
 
 from artitwin_core.registration._clouds import backproject, frame_points, fused_cloud
+from artitwin_core.registration._drift import SessionDrift, SessionDriftConfig, estimate_session_drift
 from artitwin_core.registration._register import register_recordings
 from artitwin_core.registration._types import RegistrationConfig, RegistrationResult
 
 __all__ = [
     "RegistrationConfig",
     "RegistrationResult",
+    "SessionDrift",
+    "SessionDriftConfig",
     "backproject",
+    "estimate_session_drift",
     "frame_points",
     "fused_cloud",
     "register_recordings",
