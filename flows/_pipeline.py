@@ -32,6 +32,7 @@ from schemas import (
     ExportBundle,
     JointSet,
     PipelineConfig,
+    PoseDriftResult,
     Registration,
     StageReport,
 )
@@ -48,6 +49,15 @@ def scene_pipeline(scene: str | Path, config: PipelineConfig, ex: Executor) -> d
         raw = raw_input(path, recording_files(path))
         caps[label] = h[f"ingest/{label}"] = ex.submit("ingest", config.ingest, {"recording": raw}, label)
         h[f"capture_check/{label}"] = ex.submit("capture_check", config.capture_check, {"capture": caps[label]}, label)
+    # With the poses' drift modelled (pose_drift), the static recording's is fitted from its own
+    # frames and corrected before anything else is built on it (the depth calibration included,
+    # which drifting poses would bias); the dynamic recording's needs the canonical model and its
+    # part masks, so it is corrected after part_masks (below).
+    if config.pose_drift.model:
+        static_drift = h["static_drift"] = ex.submit("static_drift", config.pose_drift, {"capture": caps["static"]}, "static")
+        caps["static"] = h["correct_pose_drift/static"] = ex.submit(
+            "correct_pose_drift", config.pose_drift, {"capture": caps["static"], "drift": static_drift}, "static"
+        )
     # With the sensor's depth error modelled (the effect depth_scale_offset), it is found from the
     # static recording and every stage reads both recordings' depth corrected by it, the 3DGS too:
     # the Gaussians are then metric, as the joints fitted to the corrected depth are. The 3DGS is
@@ -83,6 +93,16 @@ def scene_pipeline(scene: str | Path, config: PipelineConfig, ex: Executor) -> d
     h["part_masks_report"] = ex.submit(
         "part_masks_report", config.part_masks, {"dynamic": dynamic, "masks": masks, "registration": reg}, "dynamic"
     )
+    if config.pose_drift.model:
+        session_drift = h["session_drift"] = ex.submit(
+            "session_drift",
+            config.pose_drift,
+            {"static": static, "dynamic": dynamic, "registration": reg, "masks": masks},
+            "dynamic",
+        )
+        dynamic = h["correct_pose_drift/dynamic"] = ex.submit(
+            "correct_pose_drift", config.pose_drift, {"capture": dynamic, "drift": session_drift}, "dynamic"
+        )
     # III. tracks and joints
     tracks = h["track"] = ex.submit("track", config.track, {"dynamic": dynamic, "masks": masks, "registration": reg}, "dynamic")
     fitted = h["fit_joints"] = ex.submit("fit_joints", config.fit_joints, {"trajectories": tracks}, "dynamic")
@@ -183,6 +203,14 @@ def build_summary(
                 "depth_error_se_m": _finite(cal.error_se_m), "applied": float(cal.applied),
             }
             entry["notes"] = [cal.note] if cal.note else []
+        elif run.kind == PoseDriftResult.kind:
+            drift = store.get(run.key, PoseDriftResult)
+            entry["metrics"] = {
+                "drift_displacement_m": float(np.linalg.norm(drift.displacement_m)), "drift_z_score": _finite(drift.z_score),
+                "drift_rate_m_per_s": float(np.linalg.norm(drift.rate_m_per_s)), "residual_m": drift.residual_m,
+                "applied": float(drift.applied),
+            }
+            entry["notes"] = [drift.note] if drift.note else []
         elif run.kind == DiagnosisReport.kind:
             report = store.get(run.key, DiagnosisReport)
             entry["metrics"] = {k: _finite(v) for k, v in report.metrics.items()}

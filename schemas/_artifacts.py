@@ -111,6 +111,38 @@ class DepthCalibrationResult(Artifact):
     note: str = Field(default="", description="Why it is not applied, in words; empty when it is.")
 
 
+class PoseDriftResult(Artifact):
+    """A recording's fitted pose drift (artitwin_core.capture.PoseDrift) and whether it is applied:
+    ``corrected(t) = G(t) @ recorded(t)``, ``G(t) = G_rate(t - t0_s) @ G_offset``, rigid motions about
+    ``pivot``, in the recording's own world frame."""
+
+    kind = "pose_drift"
+    schema_version = 1
+
+    recording: str = Field(description="Which recording: 'static' or 'dynamic'.")
+    pivot: Array("float64", "3") = Field(description="The point the correction turns about (the first camera), metres, [3].")
+    t0_s: float = Field(description="Time at which the rate part is zero, seconds (the recording's clock).")
+    rot0_rad: Array("float64", "3") = Field(description="Constant part: rotation vector, radians, [3].")
+    trans0_m: Array("float64", "3") = Field(description="Constant part: translation, metres, [3].")
+    rot_rate_rad_per_s: Array("float64", "3") = Field(description="Rate part: rotation vector per second, [3].")
+    trans_rate_m_per_s: Array("float64", "3") = Field(description="Rate part: translation per second, metres, [3].")
+    point: Array("float64", "3") = Field(
+        description="Reference point ahead of the first camera at the median depth, metres, [3] (the canonical frame for "
+        "the dynamic recording)."
+    )
+    displacement_m: Array("float64", "3") = Field(description="How far the rate part moves the point by the last frame, metres, [3].")
+    displacement_se_m: Array("float64", "3") = Field(description="Its standard errors (frame-block jackknife), metres, [3].")
+    z_score: float = Field(description="The displacement's size over its standard error along it.")
+    rate_m_per_s: Array("float64", "3") = Field(description="How fast the drift moves the point, m/s, [3].")
+    half_rates_m_per_s: Array("float64", "2 3") | None = Field(
+        default=None, description="The same rate fitted on each half of the recording alone, [2, 3]; None if not fitted."
+    )
+    residual_m: float = Field(description="Robust spread of the depth terms after the fit, metres.")
+    method: str = Field(description="How it was fitted.")
+    applied: bool = Field(description="Whether correct_pose_drift corrects the poses with it.")
+    note: str = Field(default="", description="Why it is not applied, in words; empty when it is.")
+
+
 # ----------------------------------------------------------------------------------------------
 # Masks and tracks
 # ----------------------------------------------------------------------------------------------

@@ -82,6 +82,37 @@ class DepthCalibrationConfig(StageConfig):
     )
 
 
+class PoseDriftConfig(StageConfig):
+    """Modelling each recording's pose drift (the effect pose_drift): a turn about gravity and a translation, both
+    growing linearly from the first frame (artitwin_core.capture.PoseDrift). The static recording's drift is fitted
+    from its own frames (with the sensor's depth error as a nuisance: the two bend the frames' agreement alike), the
+    dynamic recording's against the canonical model once its parts are masked
+    (artitwin_core.registration.estimate_session_drift)."""
+
+    model: bool = Field(default=False, description="Model the drift (set by the effect pose_drift); off: poses as recorded.")
+    gravity: Gravity = Field(default=(0.0, -1.0, 0.0), description="Gravity direction in both recordings' frames.")
+    min_displacement_m: float = Field(
+        default=0.01, ge=0,
+        description="A drift is applied only if it moves a point ahead of the first camera (at the median depth) at least "
+        "this far by the last frame, metres.",
+    )
+    min_z_score: float = Field(
+        default=3.0, ge=0, description="... and by at least this many standard errors (frame-block jackknife)."
+    )
+    max_half_disagreement: float = Field(
+        default=1.0, gt=0,
+        description="... and the drift rates fitted on each half of the recording alone differ by at most this fraction of "
+        "the fitted rate (per-frame jitter or the canonical model's own errors fake trends that change with the frames).",
+    )
+    mask_dilation_px: int = Field(default=6, ge=0, description="Part and hand masks are grown by this many pixels before they exclude depth and keypoints.")
+    max_association_m: float = Field(
+        default=0.03, gt=0,
+        description="Dynamic depth further than this from the canonical surface ray-cast through its pixel is left out, metres.",
+    )
+    tsdf_voxel_m: float = Field(default=0.02, gt=0, description="Voxel of the canonical TSDF the dynamic depth is fitted to, metres.")
+    tsdf_max_frames: int = Field(default=20, ge=1, description="Static frames fused into that TSDF.")
+
+
 class TrackConfig(StageConfig):
     """Tracking points on each moving part and lifting them to 3D (see artitwin_core.tracking)."""
 
@@ -138,6 +169,7 @@ EFFECT_STAGES: dict[str, str] = {
     "vignetting": "reconstruct",
     "depth_scale_offset": "reconstruct",
     "screw_joint": "fit_joints",
+    "pose_drift": "pose_drift",
     "time_offset": "joint_states",
 }
 # Effects modelled with a value the diagnosis fits (``NAME=VALUE`` in ``with_effects``): the
@@ -161,6 +193,9 @@ class PipelineConfig(StageConfig):
     )
     registration: RegisterConfig = Field(default_factory=RegisterConfig, description="Dynamic-to-canonical registration.")
     part_masks: PartMasksConfig = Field(default_factory=PartMasksConfig, description="Part and hand masks.")
+    pose_drift: PoseDriftConfig = Field(
+        default_factory=PoseDriftConfig, description="Both recordings' pose drift, when pose_drift is modelled."
+    )
     track: TrackConfig = Field(default_factory=TrackConfig, description="3D point tracks on the parts.")
     fit_joints: JointConfig = Field(default_factory=JointConfig, description="Joint fitting.")
     joint_states: JointStateConfig = Field(
@@ -213,6 +248,8 @@ class PipelineConfig(StageConfig):
             update["reconstruct"] = self.reconstruct.model_copy(update={"sensor_effects": merged})
         if "screw_joint" in names:
             update["fit_joints"] = self.fit_joints.model_copy(update={"model_screw": True})
+        if "pose_drift" in names:
+            update["pose_drift"] = self.pose_drift.model_copy(update={"model": True})
         for name, value in values.items():
             stage, field = EFFECT_STAGES[name], EFFECT_VALUES[name][1]
             current = update.get(stage, getattr(self, stage))
@@ -224,6 +261,8 @@ class PipelineConfig(StageConfig):
         out = list(self.reconstruct.sensor_effects)
         if self.fit_joints.model_screw:
             out.append("screw_joint")
+        if self.pose_drift.model:
+            out.append("pose_drift")
         for name, (_, field) in EFFECT_VALUES.items():
             value = getattr(getattr(self, EFFECT_STAGES[name]), field)
             if value != 0.0:

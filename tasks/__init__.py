@@ -9,6 +9,7 @@ from tasks._stage import STAGES, Stage, stage
 from tasks.articulate import articulate_report, articulate_twin
 from tasks.calibrate import calibrate_capture_depth, estimate_capture_depth_calibration
 from tasks.diagnose import diagnose_dynamic, diagnose_twin, predict_dynamic, predict_views
+from tasks.drift import correct_pose_drift, fit_session_drift, fit_static_drift
 from tasks.export import export_twin
 from tasks.ingest import check_capture, ingest_recording
 from tasks.joints import fit_joints, refine_states
@@ -23,11 +24,14 @@ __all__ = [
     "articulate_twin",
     "calibrate_capture_depth",
     "check_capture",
+    "correct_pose_drift",
     "diagnose_dynamic",
     "diagnose_twin",
     "estimate_capture_depth_calibration",
     "export_twin",
     "fit_joints",
+    "fit_session_drift",
+    "fit_static_drift",
     "ingest_recording",
     "label_parts",
     "part_masks_report",

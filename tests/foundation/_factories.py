@@ -39,6 +39,8 @@ def make_artifact(cls: type[Artifact], rng: np.random.Generator) -> Artifact:
         ann = info.annotation
         if ann is str:
             values[name] = f"{name}-{rng.integers(1000)}"
+        elif ann is bool:
+            values[name] = bool(rng.integers(0, 2))
         elif ann is int:
             values[name] = int(rng.integers(0, 50))
         elif ann is float:
