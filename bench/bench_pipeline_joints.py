@@ -22,7 +22,7 @@ own standard errors (``Joint.axis_se_rad``, ``pivot_se_m``) with the registratio
 covariance leaves it out).
 
 Run: ``python bench/bench_pipeline_joints.py [--scenes door drawer ...] [--save-tracks DIR]
-[--cache DIR | --write-cache DIR] [--without-effects EFFECT ...]``; prints a table and writes ``bench/results/pipeline_joints.json``.
+[--cache DIR | --write-cache DIR] [--without-effects EFFECT ...]``; prints a table and writes ``bench/results/pipeline_joints.json`` (``pipeline_joints_pose_drift.json`` with ``--pose-drift``).
 ``--save-tracks`` keeps each part's trajectories with its true motion (``DIR/<scene>_part<k>.npz``)
 so that the joint fit can be studied offline without re-running registration, masks and
 tracking. ``--cache`` reads registration, masks and tracks from ``DIR/<scene>.pkl`` (keys
@@ -37,6 +37,10 @@ the lag the diagnosis fits): the states are moved to the RGB exposures' times.
 SCALE`` before registration; ``--depth-calibration estimate`` models the effect ``depth_scale_offset``
 as the pipeline does (the ``depth_calibration`` stage's ``estimate_depth_calibration`` on the static
 recording, applied to both unless its standard error is over the stage's ``max_error_se_m``).
+``--pose-drift`` models the effect ``pose_drift`` as the pipeline does: the static recording's drift
+fitted from its own frames (with the depth error as a nuisance) and corrected before the depth
+calibration, the dynamic recording's against the canonical TSDF after the part masks; each applied only if the
+``PoseDriftConfig`` gate passes (column ``pose_drift``: the displacement by the last frame, mm).
 """
 
 from __future__ import annotations
@@ -54,7 +58,10 @@ sys.path.insert(0, str(Path(__file__).resolve().parent))
 
 from _common import print_table, write_results  # noqa: E402
 
-from artitwin_core.capture import calibrate_depth, estimate_depth_calibration  # noqa: E402
+from artitwin_core.capture import (  # noqa: E402
+    DepthCalibrationConfig as CoreCalibrationConfig,
+)
+from artitwin_core.capture import PoseDrift, calibrate_depth, estimate_depth_calibration  # noqa: E402
 from artitwin_core.change import PartConfig, build_canonical_tsdf, segment_parts  # noqa: E402
 from artitwin_core.joints import (  # noqa: E402
     JointFitConfig,
@@ -67,10 +74,15 @@ from artitwin_core.joints import (  # noqa: E402
 )
 from artitwin_core.masks import MaskSequence  # noqa: E402
 from artitwin_core.reconstruction import PoseRefineConfig, refine_poses  # noqa: E402
-from artitwin_core.registration import RegistrationConfig, register_recordings  # noqa: E402
+from artitwin_core.registration import (  # noqa: E402
+    RegistrationConfig,
+    SessionDriftConfig,
+    estimate_session_drift,
+    register_recordings,
+)
 from artitwin_core.synth import BENCHMARK_SCENES, generate_scene  # noqa: E402
 from artitwin_core.tracking import TrackingConfig, Trajectories, track_part_points  # noqa: E402
-from schemas import DepthCalibrationConfig  # noqa: E402
+from schemas import DepthCalibrationConfig, PoseDriftConfig  # noqa: E402
 
 DEFAULT_SCENES = list(BENCHMARK_SCENES)
 GRAVITY = (0.0, -1.0, 0.0)
@@ -116,21 +128,41 @@ def _static_poses(scene, source: str) -> np.ndarray:
     return refine_poses(scene.static, PoseRefineConfig()).world_from_camera
 
 
-def _pipeline_upstream(name: str, scene, static_poses: str = "refined") -> dict:
-    """Registration, part masks and each part label's 3D tracks, as the pipeline makes them."""
+def _gated(drift: PoseDrift, sig) -> tuple[PoseDrift | None, str]:
+    """``drift`` if the session_drift / static_drift stages' gate passes it, else None; and a
+    short description (displacement by the last frame, mm)."""
+    cfg = PoseDriftConfig()
+    why = sig.why_not(cfg.min_displacement_m, cfg.min_z_score, cfg.max_half_disagreement)
+    return (None if why else drift), f"{1e3 * sig.size_m:.0f}" + (" (not applied)" if why else "")
+
+
+def _pipeline_upstream(name: str, scene, static_poses: str = "refined", pose_drift: bool = False) -> dict:
+    """Registration, part masks and each part label's 3D tracks, as the pipeline makes them; with
+    ``pose_drift``, the dynamic recording's drift fitted and corrected after the masks (as the
+    session_drift and correct_pose_drift stages do)."""
     s, d = scene.static, scene.dynamic
     t0 = time.perf_counter()
     reg = register_recordings(s, d, gravity=GRAVITY, config=RegistrationConfig())
     canonical = build_canonical_tsdf(s, world_from_camera=_static_poses(scene, static_poses))
     seg = segment_parts(d, reg.canonical_from_session, canonical, gravity=GRAVITY, config=PartConfig())
     t_masks = time.perf_counter() - t0
-    return {
+    out = {
         "canonical_from_session": reg.canonical_from_session,
         "registration_covariance": reg.covariance,
         "masks": seg.masks,
         "register_masks_s": t_masks,
         "tracks": {},
     }
+    if pose_drift:
+        from dataclasses import replace
+
+        fit = estimate_session_drift(
+            d, reg.canonical_from_session, build_canonical_tsdf(s), seg.masks.part, seg.masks.hand, s, SessionDriftConfig()
+        )
+        drift, out["dynamic_drift"] = _gated(fit.drift, fit.significance)
+        if drift is not None:
+            out["dynamic"] = replace(d, world_from_camera=drift.apply(d.world_from_camera, d.timestamps))
+    return out
 
 
 def _cached_upstream(name: str, cache: Path) -> dict:
@@ -213,12 +245,20 @@ def bench_scene(
     name: str, save_tracks: Path | None = None, cache: Path | None = None, static_poses: str = "refined",
     write_cache: Path | None = None, without_effects: tuple[str, ...] = (), rgb_time_offset_s: float = 0.0,
     add_effects: tuple[str, ...] = (), depth_calibration: tuple[float, float] | str | None = None,
+    pose_drift: bool = False,
 ) -> list[dict]:
+    from dataclasses import replace
+
     scene = generate_scene(scene_spec(name, without_effects, add_effects))
+    static_drift = ""
+    if pose_drift:  # the static_drift and correct_pose_drift stages, before the depth calibration
+        fit = estimate_depth_calibration(scene.static, config=CoreCalibrationConfig(pose_drift=True))
+        drift, static_drift = _gated(fit.drift, fit.drift_significance)
+        if drift is not None:
+            s = scene.static
+            scene = replace(scene, static=replace(s, world_from_camera=drift.apply(s.world_from_camera, s.timestamps)))
     calibration = None
     if depth_calibration is not None:  # the effect depth_scale_offset, as the calibrate_depth stage models it
-        from dataclasses import replace
-
         applied = True
         if depth_calibration == "estimate":
             found = estimate_depth_calibration(scene.static)
@@ -230,8 +270,8 @@ def bench_scene(
         if applied:
             scene = replace(scene, static=calibrate_depth(scene.static, scale, offset),
                             dynamic=calibrate_depth(scene.dynamic, scale, offset))
-    d, truth = scene.dynamic, scene.truth
-    up = _cached_upstream(name, cache) if cache is not None else _pipeline_upstream(name, scene, static_poses)
+    up = _cached_upstream(name, cache) if cache is not None else _pipeline_upstream(name, scene, static_poses, pose_drift)
+    d, truth = up.get("dynamic", scene.dynamic), scene.truth
     masks = up["masks"]
     rows = []
     labels = [int(v) for v in np.unique(masks.part) if v > 0]
@@ -240,6 +280,7 @@ def bench_scene(
             "scene": name,
             "depth_calibration": "" if calibration is None else (
                 f"{calibration[0]:.4f} z + {1e3 * calibration[1]:.1f} mm" + ("" if calibration[2] else " (not applied)")),
+            "pose_drift": f"static {static_drift} / dynamic {up['dynamic_drift']}" if pose_drift else "",
             "part": k,
             "joint_true": joint_true.joint_type,
             "frames": d.num_frames,
@@ -379,9 +420,12 @@ def main() -> None:
     parser.add_argument("--depth-calibration", type=_calibration, default=None, metavar="SCALE,OFFSET_M|estimate",
                         help="correct both recordings' depth, measured = SCALE * true + OFFSET_M; 'estimate' finds "
                         "them from the static recording as the depth_calibration stage does (the effect depth_scale_offset)")
+    parser.add_argument("--pose-drift", action="store_true",
+                        help="model both recordings' pose drift as the static_drift and session_drift stages do "
+                        "(the effect pose_drift)")
     args = parser.parse_args()
-    if args.cache and args.depth_calibration:
-        parser.error("--depth-calibration changes the depth; it cannot reuse a --cache")
+    if args.cache and (args.depth_calibration or args.pose_drift):
+        parser.error("--depth-calibration and --pose-drift change the recordings; they cannot reuse a --cache")
     if args.cache and (args.without_effects or args.add_effects):
         parser.error("--without-effects and --add-effects change the recordings; they cannot reuse a --cache of the full scenes")
     cv2.setNumThreads(2)
@@ -390,13 +434,14 @@ def main() -> None:
         rows.extend(
             bench_scene(name, args.save_tracks, args.cache, args.static_poses, args.write_cache,
                         tuple(args.without_effects), args.rgb_time_offset, tuple(args.add_effects),
-                        args.depth_calibration)
+                        args.depth_calibration, args.pose_drift)
         )
         print(f"{name}: done", flush=True)
     columns = [
         "scene",
         "part",
         "depth_calibration",
+        "pose_drift",
         "joint_true",
         "joint_est",
         "type_ok",
@@ -428,7 +473,7 @@ def main() -> None:
     )
     print_table(rows, columns)
     path = write_results(
-        "pipeline_joints",
+        "pipeline_joints_pose_drift" if args.pose_drift else "pipeline_joints",
         rows,
         {
             "tracking": repr(TrackingConfig()),
@@ -441,6 +486,7 @@ def main() -> None:
             "rgb_time_offset_s": args.rgb_time_offset,
             "depth_calibration": (list(args.depth_calibration) if isinstance(args.depth_calibration, tuple)
                                   else args.depth_calibration),
+            "pose_drift": args.pose_drift,
         },
     )
     print(f"\nwrote {path}")
