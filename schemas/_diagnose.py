@@ -76,6 +76,17 @@ class DiagnoseConfig(StageConfig):
         description="Hold out every n-th frame (images and tracks), refit the enabled effects on the others and "
         "score them on the held-out frames (per-frame parameters such as exposure re-estimated there); 0 = no check.",
     )
+    self_consistency: bool = Field(
+        default=True,
+        description="Also test the static recording against itself, without the twin: whether its frames' depth and "
+        "keypoints agree only under a linear pose drift (gated as PoseDriftConfig's defaults gate it) or a depth "
+        "scale and offset (artitwin_core.capture.estimate_depth_calibration).",
+    )
+    min_depth_error_m: float = Field(
+        default=0.005, ge=0,
+        description="The self-consistency test enables depth_scale_offset when the depth error at the recording's median "
+        "depth is at least this (metres), at least 3 standard errors, and its standard error at most 1 cm.",
+    )
 
 
 class ViewPrediction(Artifact):

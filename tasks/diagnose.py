@@ -22,6 +22,8 @@ from PIL import Image
 
 from artitwin_core import InputError
 from artitwin_core.articulation import render_twin
+from artitwin_core.capture import Capture, estimate_depth_calibration
+from artitwin_core.capture import DepthCalibrationConfig as CoreCalibrationConfig
 from artitwin_core.diagnostics import DiagnoseConfig as CoreDiagnoseConfig
 from artitwin_core.diagnostics import (
     Diagnosis,
@@ -44,6 +46,7 @@ from schemas import (
     GaussianCheckpoint,
     JointSet,
     MaskSequenceArtifact,
+    PoseDriftConfig,
     Registration,
     ReportImage,
     TrajectoriesArtifact,
@@ -312,7 +315,82 @@ def report_from_sections(sections: list[tuple[str, Diagnosis, ResidualData]], ti
     )
 
 
-@stage(name="diagnose", version=5, config=DiagnoseConfig, output=DiagnosisReport)
+def self_consistency(capture: CaptureArtifact, config: DiagnoseConfig) -> tuple[list[EffectFinding], list[str]]:
+    """The static recording against itself, without the twin: findings for ``pose_drift`` and
+    ``depth_scale_offset`` and the conclusion's lines.
+
+    The twin-based tests cannot always tell a drift or a depth error from the twin's own geometry
+    (a short training leaves both in its residual). The recording's frames can: at the right poses
+    and depth their depth maps and keypoints agree. ``estimate_depth_calibration`` fits a linear
+    drift with the depth error; the drift is enabled when it passes the gate ``static_drift``
+    applies (``PoseDriftConfig``'s defaults: size, standard errors, both halves alike). The depth
+    error is then refitted at the drift-corrected poses and enabled when its size at the median
+    depth is at least ``min_depth_error_m`` and 3 standard errors, with a standard error of at
+    most 1 cm (the depth_calibration stage's own limit). A finding is significant when it is
+    enabled (the gate is its significance test). A recording whose effects are already modelled
+    (the corrected capture) finds neither.
+    """
+    cap = to_core(Capture, capture)
+    try:
+        joint = estimate_depth_calibration(cap, config=CoreCalibrationConfig(pose_drift=True))
+    except InputError as e:
+        return [], [f"{STATIC_SCOPE}: its frames' self-consistency could not be tested ({e})"]
+    gate, sig = PoseDriftConfig(), joint.drift_significance
+    why = sig.why_not(gate.min_displacement_m, gate.min_z_score, gate.max_half_disagreement)
+    poses = joint.drift.apply(cap.world_from_camera, cap.timestamps) if not why else cap.world_from_camera
+    plain_recorded = estimate_depth_calibration(cap)
+    depth = estimate_depth_calibration(cap, world_from_camera=poses) if not why else plain_recorded
+    z_ref = depth.reference_depth_m
+    error = (depth.scale - 1.0) * z_ref + depth.offset_m
+    depth_on = (
+        abs(error) >= config.min_depth_error_m and abs(error) >= 3.0 * depth.error_se_m and depth.error_se_m <= 0.01
+    )
+
+    def explained(before: float, after: float) -> float:
+        return float(1.0 - (after / before) ** 2) if before > 0 else 0.0
+
+    findings = [
+        EffectFinding(
+            name="pose_drift", scope=STATIC_SCOPE, target="self-consistency",
+            explained_frac=explained(plain_recorded.residual_m, joint.residual_m),
+            energy_before=plain_recorded.residual_m**2, energy_after=joint.residual_m**2,
+            significant=not why, enabled=not why,
+            params=_json_safe({
+                "displacement_m": sig.displacement_m.tolist(), "displacement_se_m": sig.displacement_se_m.tolist(),
+                "z_score": sig.z_score, "rate_m_per_s": sig.rate_m_per_s.tolist(),
+                "half_disagreement": sig.half_disagreement,
+                "rot_rate_rad_per_s": joint.drift.rot_rate_rad_per_s.tolist(),
+                "trans_rate_m_per_s": joint.drift.trans_rate_m_per_s.tolist(),
+            }),
+        ),
+        EffectFinding(
+            name="depth_scale_offset", scope=STATIC_SCOPE, target="self-consistency",
+            explained_frac=explained(depth.initial_residual_m, depth.residual_m),
+            energy_before=depth.initial_residual_m**2, energy_after=depth.residual_m**2,
+            significant=bool(depth_on), enabled=bool(depth_on),
+            params=_json_safe({
+                "scale": depth.scale, "offset_m": depth.offset_m, "error_m": error, "error_se_m": depth.error_se_m,
+                "reference_depth_m": z_ref,
+            }),
+        ),
+    ]
+    lines = []
+    if not why:
+        lines.append(
+            f"{STATIC_SCOPE}: its own frames agree only under a linear pose drift: {1e3 * sig.size_m:.0f} mm by the "
+            f"last frame at {z_ref:.1f} m ahead of the first camera ({sig.z_score:.0f} standard errors, both halves of "
+            "the recording alike). Model it: --effect pose_drift."
+        )
+    if depth_on:
+        lines.append(
+            f"{STATIC_SCOPE}: its own frames agree only with its depth corrected: measured = {depth.scale:.4f} z "
+            f"{1e3 * depth.offset_m:+.1f} mm, {1e3 * error:+.1f} mm at {z_ref:.1f} m (standard error "
+            f"{1e3 * depth.error_se_m:.1f} mm). Model it: --effect depth_scale_offset."
+        )
+    return findings, lines
+
+
+@stage(name="diagnose", version=6, config=DiagnoseConfig, output=DiagnosisReport)
 def diagnose_twin(
     capture: CaptureArtifact,
     prediction: ViewPrediction,
@@ -320,8 +398,25 @@ def diagnose_twin(
     trajectories: TrajectoriesArtifact,
     config: DiagnoseConfig,
 ) -> DiagnosisReport:
-    """Diagnose the twin: the static recording against its predicted views, each joint against its tracks."""
-    return report_from_sections(diagnose_sections(capture, prediction, joints, trajectories, config))
+    """Diagnose the twin: the static recording against its predicted views, each joint against
+    its tracks, and (``config.self_consistency``) the static recording against itself."""
+    report = report_from_sections(diagnose_sections(capture, prediction, joints, trajectories, config))
+    if not config.self_consistency:
+        return report
+    findings, lines = self_consistency(capture, config)
+    if config.effects:  # restricted to named effects
+        findings = [f for f in findings if f.name in config.effects]
+        lines = [line for line in lines if any(f"--effect {f.name}" in line for f in findings)]
+    enabled = list(report.enabled)
+    enabled += [f"{STATIC_SCOPE}/{f.name}" for f in findings if f.enabled and f"{STATIC_SCOPE}/{f.name}" not in enabled]
+    metrics = dict(report.metrics)
+    metrics["enabled_count"] = float(len(enabled))
+    metrics["significant_count"] = float(metrics.get("significant_count", 0.0) + sum(f.significant for f in findings))
+    return report.model_copy(update={
+        "findings": list(report.findings) + findings, "enabled": enabled, "metrics": metrics,
+        "conclusion": list(report.conclusion) + lines,
+        "no_effect_needed": report.no_effect_needed and not any(f.enabled for f in findings),
+    })
 
 
 @stage(name="diagnose_dynamic", version=2, config=DiagnoseConfig, output=DiagnosisReport)

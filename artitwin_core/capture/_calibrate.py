@@ -114,6 +114,8 @@ class DepthCalibration:
         drift: the poses' fitted drift (``config.pose_drift``), None when not modelled.
         drift_significance: how far its rate moves a point at ``reference_depth_m`` ahead of the
             first camera by the last frame, with standard errors.
+        initial_residual_m: ``residual_m`` before any correction (the depth as measured, the
+            poses as recorded).
     """
 
     scale: float
@@ -126,6 +128,7 @@ class DepthCalibration:
     error_se_m: float = float("nan")
     drift: PoseDrift | None = None
     drift_significance: DriftSignificance | None = None
+    initial_residual_m: float = float("nan")
 
 
 def _normals(z: np.ndarray, k: np.ndarray) -> np.ndarray:
@@ -291,7 +294,7 @@ def _estimate(capture: Capture, world_from_camera: np.ndarray | None, config: De
                 if len(pi):
                     matches[(i, i + g)] = (pi, pj)
     n_depth = 2 if config.estimate_depth else 0
-    a, b, spread, count = 1.0, 0.0, float("nan"), 0
+    a, b, spread, count, initial = 1.0, 0.0, float("nan"), 0, float("nan")
     blocks = config.jackknife_blocks
     for _ in range(config.iterations):
         poses = drift.apply(recorded, ts) if drift is not None else recorded
@@ -329,6 +332,8 @@ def _estimate(capture: Capture, world_from_camera: np.ndarray | None, config: De
             src_spread = float(1.4826 * np.median(np.abs(r))) + 1e-9
             if not rows:
                 spread = src_spread  # the depth terms' spread: the residual reported
+                if np.isnan(initial):
+                    initial = spread  # ... and before any correction
             wts = np.clip(1.0 - (r / (4.685 * src_spread)) ** 2, 0.0, 1.0) ** 2 / src_spread**2
             hess = hess + (x * wts[:, None]).T @ x
             grad = grad + (x * wts[:, None]).T @ rhs
@@ -383,6 +388,6 @@ def _estimate(capture: Capture, world_from_camera: np.ndarray | None, config: De
     return DepthCalibration(
         scale=float(1.0 / a), offset_m=float(-b / a), residual_m=spread, points=count,
         scale_se=scale_se, offset_m_se=offset_se, reference_depth_m=z_ref, error_se_m=error_se,
-        drift=drift, drift_significance=significance,
+        drift=drift, drift_significance=significance, initial_residual_m=initial,
     )
 

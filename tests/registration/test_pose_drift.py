@@ -228,3 +228,24 @@ def test_pipeline_routes_later_stages_through_the_drift_corrections(tmp_path):
         assert ex.calls[name]["dynamic"] == "correct_pose_drift/dynamic", name
     assert ex.calls["reconstruct/static"]["capture"] == "calibrate_depth/static"
     assert ex.calls["articulate/scene"]["static"] == "calibrate_depth/static"
+
+
+def test_the_diagnosis_finds_a_drift_and_a_depth_error_from_the_recording_itself(drifting, clean):
+    """The twin-based tests cannot tell a drift or a depth error from a short-trained twin's own
+    geometry; the static recording's self-consistency can, and names the effect to model."""
+    from schemas._diagnose import DiagnoseConfig
+    from tasks.diagnose import self_consistency
+
+    def enabled(scene):
+        findings, lines = self_consistency(to_artifact(CaptureArtifact, scene.static), DiagnoseConfig())
+        on = sorted(f.name for f in findings if f.enabled)
+        assert len(lines) == len(on) and all(f"--effect {name}" in " ".join(lines) for name in on)
+        return on, {f.name: f for f in findings}
+
+    on, found = enabled(drifting)
+    assert on == ["pose_drift"] and found["pose_drift"].params["z_score"] > 10
+    on, found = enabled(_door(("depth_bias", BIAS)))
+    assert on == ["depth_scale_offset"]
+    assert found["depth_scale_offset"].params["scale"] == pytest.approx(1.03, abs=0.004)
+    on, found = enabled(clean)
+    assert on == [] and not any(f.significant for f in found.values())
