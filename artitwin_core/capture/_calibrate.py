@@ -24,6 +24,7 @@ from artitwin_core.capture._drift import (
     DriftSignificance,
     FeatureCache,
     PoseDrift,
+    block_jackknife_cov,
     depth_at_pixels,
     drift_significance,
     pixel_rays,
@@ -356,24 +357,12 @@ def _estimate(capture: Capture, world_from_camera: np.ndarray | None, config: De
         count = int(sum(np.count_nonzero(w > 0) for _, w, _, _, _ in rows))
     # Jackknife over blocks of frames, at the last association and weights (the solution there is
     # the last step; each drop's is compared with it).
-    x_all = np.concatenate([r[0] for r in rows])
-    w_all = np.concatenate([r[1] for r in rows])
-    rhs_all = np.concatenate([r[2] for r in rows])
-    block_all = np.concatenate([r[3] for r in rows])
-    drops = []
-    for k in np.unique(block_all):
-        keep = block_all != k
-        hk = (x_all[keep] * w_all[keep, None]).T @ x_all[keep]
-        if np.linalg.cond(hk) < 1e12:
-            drops.append(np.linalg.solve(hk, -(x_all[keep] * w_all[keep, None]).T @ rhs_all[keep]))
+    cov = block_jackknife_cov(*(np.concatenate([r[k] for r in rows]) for k in range(4)))
     depths = rows[0][4][rows[0][1] > 0]
     z_ref = float(np.median(depths)) if len(depths) else float("nan")
     scale_se = offset_se = error_se = float("nan")
     rate_cov = None
-    if len(drops) >= 3:
-        d = np.asarray(drops)
-        n = len(d)
-        cov = (n - 1) / n * (d - d.mean(0)).T @ (d - d.mean(0))
+    if cov is not None:
         if config.estimate_depth:
             # the unknowns are (s, b / a) and the offset is -b / a
             scale_se, offset_se = float(np.sqrt(cov[0, 0])), float(np.sqrt(cov[1, 1]))

@@ -167,6 +167,27 @@ def drift_significance(
     )
 
 
+def block_jackknife_cov(
+    design: np.ndarray, weights: np.ndarray, rhs: np.ndarray, block: np.ndarray, ridge: float = 0.0
+) -> np.ndarray | None:
+    """``[P, P]`` jackknife covariance of the weighted least-squares solution of ``design [N, P]
+    x = -rhs [N]`` (weights ``[N]``), leaving out each ``block [N]`` label in turn: rows that share
+    a block (a frame's points share its pose and depth-map errors) are not independent, so their
+    scatter is what the covariance must show. None with fewer than 3 solvable blocks."""
+    drops = []
+    for k in np.unique(block):
+        keep = block != k
+        x, w = design[keep], weights[keep]
+        hess = (x * w[:, None]).T @ x + ridge * np.eye(design.shape[1])
+        if np.linalg.cond(hess) < 1e12:
+            drops.append(np.linalg.solve(hess, -(x * w[:, None]).T @ rhs[keep]))
+    if len(drops) < 3:
+        return None
+    d = np.asarray(drops)
+    n = len(d)
+    return (n - 1) / n * (d - d.mean(0)).T @ (d - d.mean(0))
+
+
 # ----------------------------------------------------------------------------------------------
 # Image evidence: SIFT matches and their reprojection terms
 # ----------------------------------------------------------------------------------------------

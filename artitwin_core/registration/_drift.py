@@ -28,6 +28,7 @@ from artitwin_core.capture._drift import (
     DriftSignificance,
     FeatureCache,
     PoseDrift,
+    block_jackknife_cov,
     depth_at_pixels,
     drift_significance,
     pixel_rays,
@@ -291,20 +292,10 @@ def _estimate(
         if np.max(np.abs(step[:6])) < 1e-5 and np.max(np.abs(step[6:])) < 1e-6:
             break
     # Jackknife over blocks of frames at the last association.
-    a_all = np.concatenate([x[0] for x in weighted])
-    r_all = np.concatenate([x[1] for x in weighted])
-    w_all = np.concatenate([x[2] for x in weighted])
-    b_all = np.concatenate([x[3] for x in weighted])
-    drops = []
-    for k in np.unique(b_all):
-        keep = b_all != k
-        hk = (a_all[keep] * w_all[keep, None]).T @ a_all[keep]
-        drops.append(np.linalg.solve(hk + 1e-9 * np.eye(10), -(a_all[keep] * w_all[keep, None]).T @ r_all[keep]))
-    rate_cov = None
-    if len(drops) >= 3:
-        d = np.asarray(drops)
-        cov = (len(d) - 1) / len(d) * (d - d.mean(0)).T @ (d - d.mean(0))
-        rate_cov = cov[6:, 6:]
+    cov = block_jackknife_cov(
+        *(np.concatenate([x[k] for x in weighted]) for k in (0, 2, 1, 3)), ridge=1e-9
+    )  # design, weights, rhs, block
+    rate_cov = None if cov is None else cov[6:, 6:]
     z_ref = float(np.nanmedian(np.asarray(dynamic.depth[0], np.float64)))
     ahead = pivot + (z_ref if np.isfinite(z_ref) else 2.0) * recorded[0, :3, 2]
     significance = drift_significance(drift, ahead, float(ts[-1]), rate_cov, yaw_axis=gravity)

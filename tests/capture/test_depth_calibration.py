@@ -16,6 +16,7 @@ from schemas import CaptureArtifact, DepthCalibrationResult, PipelineConfig
 from schemas import DepthCalibrationConfig as StageConfig
 from tasks import to_artifact
 from tasks.calibrate import calibrate_capture_depth, estimate_capture_depth_calibration
+from tests._recorder import RecordingExecutor
 
 BIAS = {"scale": 1.03, "offset_m": 0.01}  # the synthetic effect depth_bias: recorded = 1.03 z + 1 cm
 
@@ -104,24 +105,9 @@ def test_jittering_poses_make_the_estimate_uncertain_and_it_is_not_applied():
     assert cal.error_se_m > 0.01 and not cal.applied and "uncertain" in cal.note
 
 
-class _Recorder:
-    """An executor that runs nothing: each handle is the stage/label that made it."""
-
-    def __init__(self):
-        self.calls, self.configs = {}, {}
-
-    def submit(self, stage_name, config, inputs, label):
-        handle = f"{stage_name}/{label}"
-        self.calls[handle], self.configs[handle] = inputs, config
-        return handle
-
-    def result(self, handle):
-        raise AssertionError("not run")
-
-
 def test_pipeline_routes_later_stages_through_the_calibration_when_modelled(tmp_path):
     scene = write_scene(generate_scene(BENCHMARK_SCENES["tiny"]), tmp_path / "scene")
-    plain, ex = _Recorder(), _Recorder()
+    plain, ex = RecordingExecutor(), RecordingExecutor()
     scene_pipeline(scene, PipelineConfig.preset("quick"), plain)
     assert not any(k.startswith(("depth_calibration", "calibrate_depth")) for k in plain.calls)
     assert plain.calls["register/dynamic"] == {"static": "ingest/static", "dynamic": "ingest/dynamic"}

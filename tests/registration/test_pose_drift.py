@@ -19,6 +19,7 @@ from flows._pipeline import scene_pipeline
 from schemas import CaptureArtifact, PipelineConfig, PoseDriftConfig
 from tasks import to_artifact
 from tasks.drift import correct_pose_drift, fit_static_drift
+from tests._recorder import RecordingExecutor
 
 GRAVITY = (0.0, -1.0, 0.0)
 DRIFT = {"trans_m_per_s": 0.02, "yaw_rad_per_s": 0.01}  # the synthetic effect's defaults
@@ -188,27 +189,12 @@ def test_stages_fit_decide_and_correct(drifting, clean):
     assert correct_pose_drift(plain, held, GATE).equals(plain)
 
 
-class _Recorder:
-    """An executor that runs nothing: each handle is the stage/label that made it."""
-
-    def __init__(self):
-        self.calls, self.configs = {}, {}
-
-    def submit(self, stage_name, config, inputs, label):
-        handle = f"{stage_name}/{label}"
-        self.calls[handle], self.configs[handle] = inputs, config
-        return handle
-
-    def result(self, handle):
-        raise AssertionError("not run")
-
-
 def test_pipeline_routes_later_stages_through_the_drift_corrections(tmp_path):
     scene = write_scene(generate_scene(BENCHMARK_SCENES["tiny"]), tmp_path / "scene")
-    plain = _Recorder()
+    plain = RecordingExecutor()
     scene_pipeline(scene, PipelineConfig.preset("quick"), plain)
     assert not any("drift" in k for k in plain.calls)
-    ex = _Recorder()
+    ex = RecordingExecutor()
     config = PipelineConfig.preset("quick").with_effects(["pose_drift", "depth_scale_offset"])
     assert config.enabled_effects() == ["depth_scale_offset", "pose_drift"]
     scene_pipeline(scene, config, ex)
