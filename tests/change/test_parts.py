@@ -115,3 +115,35 @@ def test_sam2_backend_without_package_is_a_clear_input_error(tmp_path, monkeypat
         propagate_masks_sam2(np.zeros((3, 8, 8, 3), np.uint8), np.zeros((8, 8), np.uint8), ckpt)
     with pytest.raises(InputError, match="rgb must be"):
         propagate_masks_sam2(np.zeros((3, 8, 8), np.uint8), np.zeros((8, 8), np.uint8), ckpt)
+
+
+def test_door_seen_edge_on_at_the_end_is_fitted_where_it_is_seen():
+    """"strong-hand-occlusion" drawn at seed 105: the door swings past the camera's line of
+    sight, so the last frames show only its edge. Fitted there (the last frame and the two most
+    open ones) no hinge explained anything and a flap about a horizontal axis "won" at 107 deg
+    with 17 supporting samples; from frame 12 on the door went to the hand (up to 9,400 pixels
+    a frame) and then out of the labels, so its tracks stopped at 17 deg. Frames where the door
+    is a quarter to three quarters open now compete as well; the vertical hinge wins and the
+    reference is the most open frame that agrees (frame 21, 59 deg). True registration."""
+    from dataclasses import replace
+
+    from artitwin_core.synth import BENCHMARK_SCENES
+
+    scene = generate_scene(replace(BENCHMARK_SCENES["strong-hand-occlusion"], seed=105))
+    truth = scene.truth
+    mesh = build_canonical_tsdf(scene.static)
+    seg = segment_parts(scene.dynamic, truth.canonical_from_dynamic_session, mesh)
+    assert len(seg.models) == 1
+    model, joint_true = seg.models[0], truth.joints[0]
+    assert model.joint_type == "revolute"
+    assert abs(float(model.axis @ joint_true.axis)) > np.cos(np.radians(3.0))  # measured 0.0 deg off (the flap: 90)
+    q_err = np.degrees(np.abs(np.abs(seg.states[:, 0]) - joint_true.q))
+    seen = np.arange(23)  # the door is seen until it turns edge-on
+    assert q_err[seen].max() < 4.0, q_err.round(1)  # measured 2.4
+    part = seg.masks.part == 1
+    true_part = truth.part_masks == 1
+    iou = (part & true_part).sum((1, 2)) / np.maximum((part | true_part).sum((1, 2)), 1)
+    assert np.median(iou[seen]) > 0.85, iou.round(2)  # measured 0.91
+    # The door is not handed to the hand once it opens.
+    hand_on_door = (seg.masks.hand & true_part).sum((1, 2)) / np.maximum(true_part.sum((1, 2)), 1)
+    assert hand_on_door[seen].max() < 0.1, hand_on_door.round(2)  # measured 0.011
