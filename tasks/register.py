@@ -48,7 +48,7 @@ def register_dynamic(static: CaptureArtifact, dynamic: CaptureArtifact, config: 
     )
 
 
-@stage(name="part_masks", version=8, config=PartMasksConfig, output=MaskSequenceArtifact)
+@stage(name="part_masks", version=9, config=PartMasksConfig, output=MaskSequenceArtifact)
 def label_parts(
     static: CaptureArtifact,
     static_poses: CameraPoses,

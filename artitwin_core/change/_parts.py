@@ -1176,13 +1176,23 @@ def _behind_outline(points: np.ndarray, front: np.ndarray, normal: np.ndarray, m
     return np.all(inside <= -margin_m, axis=1)
 
 
-def _best_state(model: PartModel, view: FrameView, centre_q: float, cfg: PartConfig) -> tuple[float, float]:
-    """Joint state near ``centre_q`` (and closed) that best explains ``view``; and its score in [0, 1]."""
+def _best_state(
+    model: PartModel, view: FrameView, centre_q: float, cfg: PartConfig, after_reference: bool = False
+) -> tuple[float, float]:
+    """Joint state near ``centre_q`` (and closed) that best explains ``view``; and its score in [0, 1].
+
+    ``after_reference``: ``view`` comes after the model's reference frame, which was not the
+    last, so the part may open further than there."""
     span = cfg.search_window * abs(model.reference_q)
     # A drawer's reference frame need not be where it is most open (non-ideal-joints' drawer was
-    # fitted at 0.207 m and opens to 0.25 m); a door's is, and searching past it invites
-    # grazing-angle states.
-    lo, hi = sorted((0.0, model.reference_q * (1.1 if model.joint_type == "revolute" else 1.35)))
+    # fitted at 0.207 m and opens to 0.25 m); a door's usually is, and searching past it invites
+    # grazing-angle states. After a reference frame that is not the last (the door seen best on
+    # its way past the camera's line of sight) the state goes on to the hypotheses' limit.
+    reach = cfg.max_rotation_rad if model.joint_type == "revolute" else cfg.max_translation_m
+    far = model.reference_q * (1.1 if model.joint_type == "revolute" else 1.35)
+    if after_reference:
+        far = float(np.sign(model.reference_q)) * max(abs(far), reach)
+    lo, hi = sorted((0.0, far))
     grid = np.unique(np.clip(np.concatenate([np.linspace(centre_q - span, centre_q + span, 41), [0.0]]), lo, hi))
 
     sub = _scoring_subset(model.closed_points)
@@ -1551,7 +1561,7 @@ def propagate_masks_backwards(
         for t in order:
             if t == r + 1:
                 current = states[r, k]  # forwards again from the reference state
-            current, scores[t, k] = _best_state(model, views[t], current, cfg)
+            current, scores[t, k] = _best_state(model, views[t], current, cfg, after_reference=t > r)
             states[t, k] = current
     if cfg.grow_frames > 0:
         models = [_grow_over_frames(model, views, states[:, k], scores[:, k], mesh, cfg)

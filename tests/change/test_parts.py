@@ -124,7 +124,8 @@ def test_door_seen_edge_on_at_the_end_is_fitted_where_it_is_seen():
     with 17 supporting samples; from frame 12 on the door went to the hand (up to 9,400 pixels
     a frame) and then out of the labels, so its tracks stopped at 17 deg. Frames where the door
     is a quarter to three quarters open now compete as well; the vertical hinge wins and the
-    reference is the most open frame that agrees (frame 21, 59 deg). True registration."""
+    reference is the most open frame that agrees (frame 21, 59 deg), from which the door is
+    tracked forwards past its reference state. True registration."""
     from dataclasses import replace
 
     from artitwin_core.synth import BENCHMARK_SCENES
@@ -138,12 +139,14 @@ def test_door_seen_edge_on_at_the_end_is_fitted_where_it_is_seen():
     assert model.joint_type == "revolute"
     assert abs(float(model.axis @ joint_true.axis)) > np.cos(np.radians(3.0))  # measured 0.0 deg off (the flap: 90)
     q_err = np.degrees(np.abs(np.abs(seg.states[:, 0]) - joint_true.q))
-    seen = np.arange(23)  # the door is seen until it turns edge-on
-    assert q_err[seen].max() < 4.0, q_err.round(1)  # measured 2.4
+    # Tracked forwards past the reference too: the door goes on to 68.8 deg.
+    assert q_err.max() < 3.0, q_err.round(1)  # measured 2.4 (the last frames held at 64.9: 3.9)
     part = seg.masks.part == 1
     true_part = truth.part_masks == 1
     iou = (part & true_part).sum((1, 2)) / np.maximum((part | true_part).sum((1, 2)), 1)
+    seen = np.arange(23)  # the door is seen until it turns edge-on
     assert np.median(iou[seen]) > 0.85, iou.round(2)  # measured 0.91
+    assert iou[23:].min() > 0.4, iou.round(2)  # the edge-on sliver: measured 0.59-0.70 (held: 0.12-0.38)
     # The door is not handed to the hand once it opens.
     hand_on_door = (seg.masks.hand & true_part).sum((1, 2)) / np.maximum(true_part.sum((1, 2)), 1)
     assert hand_on_door[seen].max() < 0.1, hand_on_door.round(2)  # measured 0.011
