@@ -30,6 +30,7 @@ from schemas import (
     DepthCalibrationResult,
     DiagnosisReport,
     ExportBundle,
+    FramePoseCorrections,
     JointSet,
     PipelineConfig,
     PoseDriftResult,
@@ -103,6 +104,14 @@ def scene_pipeline(scene: str | Path, config: PipelineConfig, ex: Executor) -> d
         dynamic = h["correct_pose_drift/dynamic"] = ex.submit(
             "correct_pose_drift", config.pose_drift, {"capture": dynamic, "drift": session_drift}, "dynamic"
         )
+    # Each frame's pose error, measured on the static background once the parts and the hand are
+    # masked: recorded poses jitter by millimetres and the tracks would carry it into the joint.
+    frame_poses = h["frame_poses"] = ex.submit(
+        "frame_poses", config.frame_poses, {"dynamic": dynamic, "masks": masks}, "dynamic"
+    )
+    dynamic = h["correct_frame_poses"] = ex.submit(
+        "correct_frame_poses", config.frame_poses, {"capture": dynamic, "corrections": frame_poses}, "dynamic"
+    )
     # III. tracks and joints
     tracks = h["track"] = ex.submit("track", config.track, {"dynamic": dynamic, "masks": masks, "registration": reg}, "dynamic")
     fitted = h["fit_joints"] = ex.submit("fit_joints", config.fit_joints, {"trajectories": tracks}, "dynamic")
@@ -211,6 +220,16 @@ def build_summary(
                 "applied": float(drift.applied),
             }
             entry["notes"] = [drift.note] if drift.note else []
+        elif run.kind == FramePoseCorrections.kind:
+            fp = store.get(run.key, FramePoseCorrections)
+            finite = np.isfinite(fp.translation_se_m)
+            entry["metrics"] = {
+                "chi2_per_dof": _finite(fp.chi2_per_dof), "pairs_used_count": float(fp.pairs_used),
+                "correction_rms_m": float(np.sqrt(np.mean(fp.translation_m[finite] ** 2))) if finite.any() else 0.0,
+                "correction_rms_deg": float(np.degrees(np.sqrt(np.mean(fp.rotation_rad[finite] ** 2)))) if finite.any() else 0.0,
+                "applied": float(fp.applied),
+            }
+            entry["notes"] = [fp.note] if fp.note else []
         elif run.kind == DiagnosisReport.kind:
             report = store.get(run.key, DiagnosisReport)
             entry["metrics"] = {k: _finite(v) for k, v in report.metrics.items()}

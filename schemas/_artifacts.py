@@ -143,6 +143,31 @@ class PoseDriftResult(Artifact):
     note: str = Field(default="", description="Why it is not applied, in words; empty when it is.")
 
 
+class FramePoseCorrections(Artifact):
+    """Per-frame corrections of a recording's poses measured on its static background
+    (``artitwin_core.tracking.estimate_frame_poses``): ``corrected[t] = corrections[t] @ recorded[t]``,
+    in the recording's own world frame."""
+
+    kind = "frame_pose_corrections"
+    schema_version = 1
+
+    recording: str = Field(description="Which recording: 'dynamic' (the static one is refined by refine_poses).")
+    corrections: Array("float64", "T 4 4") = Field(
+        description="Rigid motions applied to each frame's world_from_camera, session frame, metres, [T, 4, 4]; identity "
+        "where not applied."
+    )
+    pivot: Array("float64", "3") = Field(description="The point the corrections' rotations are taken about, session frame, metres, [3].")
+    rotation_rad: Array("float64", "T 3") = Field(description="Each frame's fitted correction: rotation vector, radians, [T, 3].")
+    translation_m: Array("float64", "T 3") = Field(description="... and how far it moves the pivot, metres, [T, 3].")
+    rotation_se_rad: Array("float64", "T") = Field(description="Standard error of each frame's rotation (RMS over components), radians, [T]; inf where unmeasured.")
+    translation_se_m: Array("float64", "T") = Field(description="Standard error of each frame's translation (RMS over components), metres, [T]; inf where unmeasured.")
+    pairs: int = Field(description="Keyframe-to-frame alignments tried.")
+    pairs_used: int = Field(description="Alignments that passed the checks and were not down-weighted as outliers.")
+    chi2_per_dof: float = Field(description="The fitted corrections against their standard errors, chi-square per degree of freedom.")
+    applied: bool = Field(description="Whether correct_frame_poses corrects the poses with them.")
+    note: str = Field(default="", description="Why they are not applied, in words; empty when they are.")
+
+
 # ----------------------------------------------------------------------------------------------
 # Masks and tracks
 # ----------------------------------------------------------------------------------------------

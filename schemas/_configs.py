@@ -179,6 +179,25 @@ EFFECT_VALUES: dict[str, tuple[str, str]] = {
 }
 
 
+class FramePosesConfig(StageConfig):
+    """Per-frame pose corrections of the dynamic recording, measured on its static background after part_masks
+    (artitwin_core.tracking.estimate_frame_poses): recorded poses jitter by millimetres from frame to frame and the
+    part's tracks carry that jitter into the joint. Applied only when the corrections stand out from their
+    standard errors."""
+
+    enabled: bool = Field(default=True, description="Fit the corrections (applied only if significant); off: poses as recorded.")
+    keyframe_step: int = Field(default=5, ge=1, description="A keyframe every this many frames (and the last frame).")
+    reach: int = Field(default=10, ge=1, description="Frames up to this many before and after a keyframe are aligned to it.")
+    mask_dilation_px: int = Field(default=8, ge=0, description="Part and hand masks are grown by this many pixels before they exclude the background.")
+    model_points: int = Field(default=3000, ge=50, description="Static points per keyframe model.")
+    min_ncc: float = Field(default=0.5, ge=-1, le=1, description="Least patch-wise grey-level correlation of a usable alignment.")
+    min_chi2_per_dof: float = Field(
+        default=10.0, ge=0,
+        description="The corrections are applied only if their chi-square against their standard errors, per degree of freedom, "
+        "is at least this (1.4-3.3 on the benchmark scenes with exact poses, 110-150 with 3 mm / 3 mrad of jitter).",
+    )
+
+
 class PipelineConfig(StageConfig):
     """The configs of every stage of one scene run."""
 
@@ -195,6 +214,9 @@ class PipelineConfig(StageConfig):
     part_masks: PartMasksConfig = Field(default_factory=PartMasksConfig, description="Part and hand masks.")
     pose_drift: PoseDriftConfig = Field(
         default_factory=PoseDriftConfig, description="Both recordings' pose drift, when pose_drift is modelled."
+    )
+    frame_poses: FramePosesConfig = Field(
+        default_factory=FramePosesConfig, description="Per-frame pose corrections of the dynamic recording from its static background."
     )
     track: TrackConfig = Field(default_factory=TrackConfig, description="3D point tracks on the parts.")
     fit_joints: JointConfig = Field(default_factory=JointConfig, description="Joint fitting.")

@@ -11,6 +11,7 @@ from tasks.calibrate import calibrate_capture_depth, estimate_capture_depth_cali
 from tasks.diagnose import diagnose_dynamic, diagnose_twin, predict_dynamic, predict_views
 from tasks.drift import correct_pose_drift, fit_session_drift, fit_static_drift
 from tasks.export import export_twin
+from tasks.frame_poses import correct_frame_poses, fit_frame_poses
 from tasks.ingest import check_capture, ingest_recording
 from tasks.joints import fit_joints, refine_states
 from tasks.reconstruct import reconstruct_canonical, reconstruct_report, refine_capture_poses
@@ -24,11 +25,13 @@ __all__ = [
     "articulate_twin",
     "calibrate_capture_depth",
     "check_capture",
+    "correct_frame_poses",
     "correct_pose_drift",
     "diagnose_dynamic",
     "diagnose_twin",
     "estimate_capture_depth_calibration",
     "export_twin",
+    "fit_frame_poses",
     "fit_joints",
     "fit_session_drift",
     "fit_static_drift",

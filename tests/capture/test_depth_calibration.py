@@ -116,8 +116,11 @@ def test_pipeline_routes_later_stages_through_the_calibration_when_modelled(tmp_
     cal = "depth_calibration/static"
     assert ex.calls["calibrate_depth/dynamic"] == {"capture": "ingest/dynamic", "calibration": cal}
     assert ex.calls["register/dynamic"] == {"static": "calibrate_depth/static", "dynamic": "calibrate_depth/dynamic"}
+    # The per-frame pose corrections are measured on the corrected depth, and later stages read both.
+    assert ex.calls["frame_poses/dynamic"] == {"dynamic": "calibrate_depth/dynamic", "masks": "part_masks/dynamic"}
+    assert ex.calls["correct_frame_poses/dynamic"]["capture"] == "calibrate_depth/dynamic"
     for name in ("track/dynamic", "joint_states/dynamic", "predict_dynamic/dynamic"):
-        assert ex.calls[name]["dynamic"] == "calibrate_depth/dynamic", name
+        assert ex.calls[name]["dynamic"] == "correct_frame_poses/dynamic", name
     assert ex.calls["articulate/scene"]["static"] == "calibrate_depth/static"
     # Stage I too: the Gaussians start on metric depth, as the joints do.
     for name in ("refine_poses/static", "reconstruct/static", "predict_views/static", "diagnose/scene"):

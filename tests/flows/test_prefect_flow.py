@@ -67,7 +67,8 @@ def test_scene_flow_writes_summary_and_reruns_from_cache(tmp_path, tiny_scene):
     assert summary["stages"].keys() == first["stages"].keys()
     assert set(summary["stages"]) == {
         "ingest/static", "ingest/dynamic", "capture_check/static", "capture_check/dynamic", "refine_poses",
-        "reconstruct", "reconstruct_report", "register", "part_masks", "part_masks_report", "track", "fit_joints",
+        "reconstruct", "reconstruct_report", "register", "part_masks", "part_masks_report", "frame_poses",
+        "correct_frame_poses", "track", "fit_joints",
         "joint_states", "articulate", "articulate_report", "predict_views", "diagnose", "predict_dynamic", "diagnose_dynamic",
         "export",
     }

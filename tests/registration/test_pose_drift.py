@@ -210,8 +210,13 @@ def test_pipeline_routes_later_stages_through_the_drift_corrections(tmp_path):
         "registration": "register/dynamic", "masks": "part_masks/dynamic",
     }
     assert ex.calls["correct_pose_drift/dynamic"] == {"capture": "calibrate_depth/dynamic", "drift": "session_drift/dynamic"}
+    # The per-frame pose corrections on top of the drift's, then every later stage reads the result.
+    assert ex.calls["frame_poses/dynamic"] == {"dynamic": "correct_pose_drift/dynamic", "masks": "part_masks/dynamic"}
+    assert ex.calls["correct_frame_poses/dynamic"] == {
+        "capture": "correct_pose_drift/dynamic", "corrections": "frame_poses/dynamic",
+    }
     for name in ("track/dynamic", "joint_states/dynamic", "predict_dynamic/dynamic", "articulate/scene", "export/scene"):
-        assert ex.calls[name]["dynamic"] == "correct_pose_drift/dynamic", name
+        assert ex.calls[name]["dynamic"] == "correct_frame_poses/dynamic", name
     assert ex.calls["reconstruct/static"]["capture"] == "calibrate_depth/static"
     assert ex.calls["articulate/scene"]["static"] == "calibrate_depth/static"
 
