@@ -164,8 +164,25 @@ class FramePoseCorrections(Artifact):
     pairs: int = Field(description="Keyframe-to-frame alignments tried.")
     pairs_used: int = Field(description="Alignments that passed the checks and were not down-weighted as outliers.")
     chi2_per_dof: float = Field(description="The fitted corrections against their standard errors, chi-square per degree of freedom.")
-    applied: bool = Field(description="Whether correct_frame_poses corrects the poses with them.")
-    note: str = Field(default="", description="Why they are not applied, in words; empty when they are.")
+    fast_chi2_per_dof: float = Field(
+        description="The same for their frame-to-frame part (less a straight line in time over FramePosesConfig.slow_frames frames)."
+    )
+    whiteness: float = Field(
+        description="How much the corrections change from frame to frame against how much they vary overall: about 1 for "
+        "white jitter, near 0 for a slow error such as drift or a sensor defect that moves with the viewpoint."
+    )
+    depth_agreement: float = Field(
+        default=0.0,
+        description="How much better the frames' depth agrees at the corrected poses than at the recorded ones, a z-score "
+        "(negative: the grey levels disagree with depth and pose, as with an RGB lag); 0 when not measured.",
+    )
+    applied: bool = Field(description="Whether correct_frame_poses corrects the poses with them (any part).")
+    applied_part: str = Field(
+        default="none",
+        description="Which part 'corrections' holds: 'all' (jitter alone), 'frame-to-frame' (the slow part, which looks "
+        "like drift or a sensor defect, left alone) or 'none'.",
+    )
+    note: str = Field(default="", description="What was not applied and why, in words; empty when everything was.")
 
 
 # ----------------------------------------------------------------------------------------------

@@ -193,8 +193,22 @@ class FramePosesConfig(StageConfig):
     min_ncc: float = Field(default=0.5, ge=-1, le=1, description="Least patch-wise grey-level correlation of a usable alignment.")
     min_chi2_per_dof: float = Field(
         default=10.0, ge=0,
-        description="The corrections are applied only if their chi-square against their standard errors, per degree of freedom, "
-        "is at least this (1.4-3.3 on the benchmark scenes with exact poses, 110-150 with 3 mm / 3 mrad of jitter).",
+        description="The corrections are applied only if the chi-square of their frame-to-frame part against its standard "
+        "errors, per degree of freedom, is at least this (1.3-5.6 on exact poses with or without sensor defects, 110-480 "
+        "with 3 mm / 3 mrad of jitter).",
+    )
+    slow_frames: int = Field(
+        default=15, ge=3, description="The corrections' slow part is a straight line in time fitted to this many frames around each frame."
+    )
+    min_whiteness: float = Field(
+        default=0.9, ge=0,
+        description="All of the corrections are applied only if they look like white jitter (whiteness at least this); "
+        "otherwise only their frame-to-frame part, leaving a slow error (drift, a sensor defect) to the effect that models it.",
+    )
+    min_depth_agreement: float = Field(
+        default=3.0,
+        description="... and nothing is applied unless the frames' depth agrees better at the corrected poses, by at least "
+        "this z-score (about +10 with jitter; -13 where the RGB lags depth and pose by 33 ms).",
     )
 
 

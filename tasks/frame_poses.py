@@ -42,6 +42,8 @@ def fit_frame_poses(
             pairs=0,
             pairs_used=0,
             chi2_per_dof=0.0,
+            fast_chi2_per_dof=0.0,
+            whiteness=0.0,
             applied=False,
             note="Per-frame pose corrections are turned off (frame_poses.enabled = false).",
         )
@@ -56,10 +58,29 @@ def fit_frame_poses(
             model_points=config.model_points,
             min_ncc=config.min_ncc,
             min_chi2_per_dof=config.min_chi2_per_dof,
+            slow_frames=config.slow_frames,
+            min_whiteness=config.min_whiteness,
+            min_depth_agreement=config.min_depth_agreement,
         ),
     )
-    if fit.significant:
+    slow = (
+        f"Their slow part (whiteness {fit.whiteness:.2f} < {config.min_whiteness:g}: they change little from frame to "
+        "frame) looks like drift or a sensor defect that moves with the viewpoint, not jitter, and is left alone; if the "
+        "diagnosis names one, model it (pose_drift, depth_scale_offset, time_offset)."
+    )
+    if fit.applied == "all":
         note = ""
+    elif fit.applied == "frame-to-frame":
+        note = "Only the corrections' frame-to-frame part is applied. " + slow
+    elif (
+        fit.depth_agreement < config.min_depth_agreement and fit.fast_chi2_per_dof >= config.min_chi2_per_dof
+    ):
+        note = (
+            f"The corrections are not applied: the frames' depth does not agree better at the corrected poses (z "
+            f"{fit.depth_agreement:.1f} < {config.min_depth_agreement:g}). The grey levels then moved where depth and pose "
+            "did not, as when the RGB is exposed at another time than the depth and pose (time_offset, rolling shutter) "
+            "or through an undeclared lens."
+        )
     elif fit.pairs_used == 0:
         note = (
             f"No alignment of the background between frames could be used ({fit.pairs} tried: too little texture or "
@@ -67,9 +88,11 @@ def fit_frame_poses(
         )
     else:
         note = (
-            f"The corrections do not stand out from their standard errors (chi-square per degree of freedom "
-            f"{fit.chi2_per_dof:.1f} < {config.min_chi2_per_dof:g}); the poses stay as recorded."
+            f"The corrections' frame-to-frame part does not stand out from its standard errors (chi-square per degree "
+            f"of freedom {fit.fast_chi2_per_dof:.1f} < {config.min_chi2_per_dof:g}); the poses stay as recorded."
         )
+        if fit.chi2_per_dof >= config.min_chi2_per_dof:
+            note += " " + slow
     return FramePoseCorrections(
         recording="dynamic",
         corrections=fit.corrections,
@@ -81,7 +104,11 @@ def fit_frame_poses(
         pairs=fit.pairs,
         pairs_used=fit.pairs_used,
         chi2_per_dof=fit.chi2_per_dof,
+        fast_chi2_per_dof=fit.fast_chi2_per_dof,
+        whiteness=fit.whiteness,
+        depth_agreement=fit.depth_agreement,
         applied=fit.significant,
+        applied_part=fit.applied,
         note=note,
     )
 
