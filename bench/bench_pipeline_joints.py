@@ -48,6 +48,10 @@ recording, applied to both unless its standard error is over the stage's ``max_e
 fitted from its own frames (with the depth error as a nuisance) and corrected before the depth
 calibration, the dynamic recording's against the canonical TSDF after the part masks; each applied only if the
 ``PoseDriftConfig`` gate passes (column ``pose_drift``: the displacement by the last frame, mm).
+As the pipeline's ``frame_poses`` stage does, each frame's pose correction is measured on the dynamic
+recording's static background after the masks and applied where significant (column
+``frame_poses``: the frame-to-frame part's chi-square per degree of freedom, the whiteness, the
+depth agreement z and which part was applied); ``--no-frame-poses`` leaves the recorded poses (the ablation).
 """
 
 from __future__ import annotations
@@ -88,7 +92,13 @@ from artitwin_core.registration import (  # noqa: E402
     register_recordings,
 )
 from artitwin_core.synth import BENCHMARK_SCENES, generate_scene  # noqa: E402
-from artitwin_core.tracking import TrackingConfig, Trajectories, track_part_points  # noqa: E402
+from artitwin_core.tracking import (  # noqa: E402
+    FramePoseConfig,
+    TrackingConfig,
+    Trajectories,
+    estimate_frame_poses,
+    track_part_points,
+)
 from schemas import DepthCalibrationConfig, PoseDriftConfig  # noqa: E402
 
 DEFAULT_SCENES = list(BENCHMARK_SCENES)
@@ -143,10 +153,13 @@ def _gated(drift: PoseDrift, sig) -> tuple[PoseDrift | None, str]:
     return (None if why else drift), f"{1e3 * sig.size_m:.0f}" + (" (not applied)" if why else "")
 
 
-def _pipeline_upstream(name: str, scene, static_poses: str = "refined", pose_drift: bool = False) -> dict:
+def _pipeline_upstream(
+    name: str, scene, static_poses: str = "refined", pose_drift: bool = False, frame_poses: bool = True
+) -> dict:
     """Registration, part masks and each part label's 3D tracks, as the pipeline makes them; with
     ``pose_drift``, the dynamic recording's drift fitted and corrected after the masks (as the
-    session_drift and correct_pose_drift stages do)."""
+    session_drift and correct_pose_drift stages do); with ``frame_poses``, its per-frame pose
+    corrections after that (the frame_poses and correct_frame_poses stages)."""
     s, d = scene.static, scene.dynamic
     t0 = time.perf_counter()
     reg = register_recordings(s, d, gravity=GRAVITY, config=RegistrationConfig())
@@ -169,11 +182,24 @@ def _pipeline_upstream(name: str, scene, static_poses: str = "refined", pose_dri
         drift, out["dynamic_drift"] = _gated(fit.drift, fit.significance)
         if drift is not None:
             out["dynamic"] = replace(d, world_from_camera=drift.apply(d.world_from_camera, d.timestamps))
+    if frame_poses:  # the frame_poses and correct_frame_poses stages
+        from dataclasses import replace
+
+        d = out.get("dynamic", d)
+        t0 = time.perf_counter()
+        fp = estimate_frame_poses(d, seg.masks.part, seg.masks.hand, FramePoseConfig())
+        out["frame_poses_s"] = time.perf_counter() - t0
+        out["frame_poses"] = f"chi2 {fp.fast_chi2_per_dof:.1f} w {fp.whiteness:.2f} z {fp.depth_agreement:.1f}" + (
+            f" applied ({fp.applied})" if fp.significant else ""
+        )
+        if fp.significant:
+            out["dynamic"] = replace(d, world_from_camera=fp.apply(d.world_from_camera))
     return out
 
 
-def _cached_upstream(name: str, cache: Path) -> dict:
-    """The same upstream results read from ``cache/<scene>.pkl``, as ``--write-cache`` writes them."""
+def _cached_upstream(name: str, cache: Path, dynamic) -> dict:
+    """The same upstream results read from ``cache/<scene>.pkl``, as ``--write-cache`` writes them
+    (``dynamic``: the scene's recording, whose poses the cache's corrected ones replace)."""
     with open(cache / f"{name}.pkl", "rb") as f:
         c = pickle.load(f)
     tracks = {
@@ -185,13 +211,19 @@ def _cached_upstream(name: str, cache: Path) -> dict:
         )
         for lab, tr in c["tracks"].items()
     }
-    return {
+    out = {
         "canonical_from_session": c["canonical_from_session"],
         "registration_covariance": c.get("registration_covariance"),
         "masks": MaskSequence(part=c["part"], hand=c["hand"], score=c["score"]),
         "register_masks_s": float("nan"),
         "tracks": tracks,
+        "frame_poses": c.get("frame_poses", ""),
     }
+    if c.get("dynamic_world_from_camera") is not None:  # the poses the tracks were lifted with
+        from dataclasses import replace
+
+        out["dynamic"] = replace(dynamic, world_from_camera=c["dynamic_world_from_camera"])
+    return out
 
 
 def _write_cache(name: str, up: dict, cache: Path) -> None:
@@ -208,6 +240,8 @@ def _write_cache(name: str, up: dict, cache: Path) -> None:
                   "query_frame": tr.query_frame}
             for lab, tr in up["tracks"].items()
         },
+        "frame_poses": up.get("frame_poses", ""),
+        "dynamic_world_from_camera": up["dynamic"].world_from_camera if "dynamic" in up else None,
     }
     tmp = cache / f"{name}.pkl.tmp"
     with open(tmp, "wb") as f:
@@ -264,7 +298,7 @@ def bench_scene(
     name: str, save_tracks: Path | None = None, cache: Path | None = None, static_poses: str = "refined",
     write_cache: Path | None = None, without_effects: tuple[str, ...] = (), rgb_time_offset_s: float = 0.0,
     add_effects: tuple[str, ...] = (), depth_calibration: tuple[float, float] | str | None = None,
-    pose_drift: bool = False, seed: int | None = None,
+    pose_drift: bool = False, seed: int | None = None, frame_poses: bool = True,
 ) -> list[dict]:
     from dataclasses import replace
 
@@ -290,7 +324,11 @@ def bench_scene(
         if applied:
             scene = replace(scene, static=calibrate_depth(scene.static, scale, offset),
                             dynamic=calibrate_depth(scene.dynamic, scale, offset))
-    up = _cached_upstream(name, cache) if cache is not None else _pipeline_upstream(name, scene, static_poses, pose_drift)
+    up = (
+        _cached_upstream(name, cache, scene.dynamic)
+        if cache is not None
+        else _pipeline_upstream(name, scene, static_poses, pose_drift, frame_poses)
+    )
     d, truth = up.get("dynamic", scene.dynamic), scene.truth
     masks = up["masks"]
     rows = []
@@ -302,10 +340,12 @@ def bench_scene(
             "depth_calibration": "" if calibration is None else (
                 f"{calibration[0]:.4f} z + {1e3 * calibration[1]:.1f} mm" + ("" if calibration[2] else " (not applied)")),
             "pose_drift": f"static {static_drift} / dynamic {up['dynamic_drift']}" if pose_drift else "",
+            "frame_poses": up.get("frame_poses", ""),
             "part": k,
             "joint_true": joint_true.joint_type,
             "frames": d.num_frames,
             "register_masks_s": up["register_masks_s"],
+            "frame_poses_s": up.get("frame_poses_s", float("nan")),
         }
         true_mask = truth.part_masks == k + 1
         overlap = [np.logical_and(masks.part == lab, true_mask).sum() for lab in labels]
@@ -487,9 +527,11 @@ def main() -> None:
     parser.add_argument("--pose-drift", action="store_true",
                         help="model both recordings' pose drift as the static_drift and session_drift stages do "
                         "(the effect pose_drift)")
+    parser.add_argument("--no-frame-poses", action="store_true",
+                        help="leave the dynamic recording's poses as recorded (no frame_poses correction; the ablation)")
     args = parser.parse_args()
-    if args.cache and (args.depth_calibration or args.pose_drift):
-        parser.error("--depth-calibration and --pose-drift change the recordings; they cannot reuse a --cache")
+    if args.cache and (args.depth_calibration or args.pose_drift or args.no_frame_poses):
+        parser.error("--depth-calibration, --pose-drift and --no-frame-poses change the recordings; they cannot reuse a --cache")
     if args.cache and (args.without_effects or args.add_effects):
         parser.error("--without-effects and --add-effects change the recordings; they cannot reuse a --cache of the full scenes")
     if args.seeds < 1:
@@ -506,7 +548,7 @@ def main() -> None:
             rows.extend(
                 bench_scene(name, args.save_tracks, args.cache, args.static_poses, args.write_cache,
                             tuple(args.without_effects), args.rgb_time_offset, tuple(args.add_effects),
-                            args.depth_calibration, args.pose_drift, seed)
+                            args.depth_calibration, args.pose_drift, seed, not args.no_frame_poses)
             )
             print(f"{name}" + (f" (seed {seed})" if seed is not None else "") + ": done", flush=True)
     columns = [
@@ -515,6 +557,7 @@ def main() -> None:
         "part",
         "depth_calibration",
         "pose_drift",
+        "frame_poses",
         "joint_true",
         "joint_est",
         "type_ok",
@@ -537,6 +580,7 @@ def main() -> None:
         "tracks",
         "track_err_mm",
         "register_masks_s",
+        "frame_poses_s",
         "track_s",
         "fit_s",
         "refine_s",
@@ -569,6 +613,7 @@ def main() -> None:
             "depth_calibration": (list(args.depth_calibration) if isinstance(args.depth_calibration, tuple)
                                   else args.depth_calibration),
             "pose_drift": args.pose_drift,
+            "frame_poses": not args.no_frame_poses,
         },
     )
     print(f"\nwrote {path}")

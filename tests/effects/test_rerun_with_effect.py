@@ -22,8 +22,8 @@ from schemas import DiagnosisReport, PipelineConfig, StageReport
 
 EFFECT = "exposure_white_balance"
 STATIC = "static recording"
-STAGES = ["ingest", "refine_poses", "reconstruct", "reconstruct_report", "register", "part_masks", "track",
-          "fit_joints", "joint_states", "predict_views", "diagnose"]  # what the diagnosis needs (no stage IV, no export)
+STAGES = ["ingest", "refine_poses", "reconstruct", "reconstruct_report", "register", "part_masks",
+          "frame_poses", "correct_frame_poses", "track", "fit_joints", "joint_states", "predict_views", "diagnose"]  # what the diagnosis needs (no stage IV, no export)
 
 
 def _run(scene, config, store, out):
@@ -64,7 +64,8 @@ def test_diagnosis_names_the_injected_effect_first(two_runs):
 
 def test_rerun_reuses_everything_upstream_of_the_reconstruction(two_runs):
     _, _, a, b = two_runs
-    for name in ("ingest/static", "refine_poses", "register", "part_masks", "track", "fit_joints"):
+    for name in ("ingest/static", "refine_poses", "register", "part_masks", "frame_poses", "correct_frame_poses",
+                 "track", "fit_joints"):
         assert b[name].status == "cached", (name, b[name].status)
         assert b[name].key == a[name].key
     for name in ("reconstruct", "predict_views", "diagnose"):
