@@ -224,10 +224,12 @@ def build_summary(
             fp = store.get(run.key, FramePoseCorrections)
             finite = np.isfinite(fp.translation_se_m)
             entry["metrics"] = {
-                "chi2_per_dof": _finite(fp.chi2_per_dof), "pairs_used_count": float(fp.pairs_used),
+                "chi2_per_dof": _finite(fp.chi2_per_dof), "fast_chi2_per_dof": _finite(fp.fast_chi2_per_dof),
+                "whiteness": _finite(fp.whiteness), "depth_agreement": _finite(fp.depth_agreement),
+                "pairs_used_count": float(fp.pairs_used),
                 "correction_rms_m": float(np.sqrt(np.mean(fp.translation_m[finite] ** 2))) if finite.any() else 0.0,
                 "correction_rms_deg": float(np.degrees(np.sqrt(np.mean(fp.rotation_rad[finite] ** 2)))) if finite.any() else 0.0,
-                "applied": float(fp.applied),
+                "applied": float(fp.applied), "applied_all": float(fp.applied_part == "all"),
             }
             entry["notes"] = [fp.note] if fp.note else []
         elif run.kind == DiagnosisReport.kind:

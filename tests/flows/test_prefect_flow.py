@@ -73,6 +73,10 @@ def test_scene_flow_writes_summary_and_reruns_from_cache(tmp_path, tiny_scene):
         "export",
     }
     assert all(s["status"] == "computed" for s in summary["stages"].values())
+    # The tiny scene's recorded poses are exact: its frame pose corrections are fitted, not applied.
+    frame_poses = summary["stages"]["frame_poses"]
+    assert frame_poses["metrics"]["applied"] == 0 and frame_poses["metrics"]["fast_chi2_per_dof"] < 10
+    assert "poses stay as recorded" in frame_poses["notes"][0]
     check = summary["stages"]["capture_check/static"]["metrics"]
     assert check["frames_count"] > 0 and 0 < check["valid_depth_frac"] <= 1
     assert [j["type"] for j in summary["joints"]] == ["revolute"]  # the tiny scene's one door
