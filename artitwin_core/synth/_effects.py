@@ -1,8 +1,9 @@
 """The registry of effects the generator can inject, each documented with its parameters.
 
 An effect is named in ``SceneSpec.effects`` as ``(name, {param: value})``; missing parameters
-take the defaults below. Sensor, timing and pose effects apply to both recordings; joint effects
-change how the parts really move (the ground truth then holds the nominal joint plus the true
+take the defaults below. Sensor, timing and pose effects apply to both recordings unless their
+parameter ``recordings`` says ``"static"`` or ``"dynamic"`` (a phone's exposure may wander in one
+recording only); joint effects change how the parts really move (the ground truth then holds the nominal joint plus the true
 per-frame motion in ``SceneGroundTruth.part_world_from_closed``). The ground truth records every
 effect with its resolved parameters, whether or not the capture files admit to it.
 """
@@ -74,6 +75,15 @@ _ALL = (
         "recorded pose are sampled at timestamps[i] + seconds. The true poses are those of the RGB.",
     ),
     Effect(
+        "pose_lag",
+        "timing",
+        {"seconds": 0.067},
+        "The recorded poses are late relative to both images: frame i's RGB and depth are taken at "
+        "timestamps[i] with the camera where it truly was then, but its recorded pose is the camera's "
+        "pose at timestamps[i] - seconds (negative: early). A pose stream buffered behind the "
+        "images, as phone exports can be; 2 frames of a 30 fps stream is 0.067 s.",
+    ),
+    Effect(
         "pose_drift",
         "pose",
         {"trans_m_per_s": 0.02, "yaw_rad_per_s": 0.01},
@@ -131,6 +141,12 @@ _ALL = (
 )
 
 EFFECTS: dict[str, Effect] = {e.name: e for e in _ALL}
+RECORDINGS = ("both", "static", "dynamic")
+
+
+def _scope_default(effect: Effect) -> dict:
+    """Every effect but a joint effect takes ``recordings``: which recording(s) it is injected in."""
+    return {} if effect.target == "joint" else {"recordings": "both"}
 
 
 def resolve_effects(effects: tuple) -> dict[str, dict]:
@@ -147,11 +163,22 @@ def resolve_effects(effects: tuple) -> dict[str, dict]:
             raise InputError(f"SceneSpec.effects: unknown effect {name!r}; known: {sorted(EFFECTS)}.")
         if name in out:
             raise InputError(f"SceneSpec.effects names {name!r} twice; give it once.")
-        unknown = set(params) - set(EFFECTS[name].defaults)
+        defaults = {**EFFECTS[name].defaults, **_scope_default(EFFECTS[name])}
+        unknown = set(params) - set(defaults)
         if unknown:
             raise InputError(
                 f"SceneSpec.effects[{name!r}]: unknown parameters {sorted(unknown)}; "
-                f"known: {sorted(EFFECTS[name].defaults)}."
+                f"known: {sorted(defaults)}."
             )
-        out[name] = {**EFFECTS[name].defaults, **params}
+        resolved = {**defaults, **params}
+        if resolved.get("recordings", "both") not in RECORDINGS:
+            raise InputError(
+                f"SceneSpec.effects[{name!r}]: recordings is {resolved['recordings']!r}; use one of {RECORDINGS}."
+            )
+        out[name] = resolved
     return out
+
+
+def effects_in(effects: dict[str, dict], recording: str) -> dict[str, dict]:
+    """The resolved ``effects`` injected in ``recording`` (``"static"`` or ``"dynamic"``)."""
+    return {n: p for n, p in effects.items() if p.get("recordings", "both") in ("both", recording)}

@@ -17,6 +17,7 @@ from artitwin_core._errors import InputError
 from artitwin_core.capture import Capture, depth_intrinsics_from_rgb
 from artitwin_core.geometry import invert_se3
 from artitwin_core.joints import Joint
+from artitwin_core.synth._effects import effects_in
 from artitwin_core.synth._motion import (
     FPS,
     Interaction,
@@ -66,7 +67,7 @@ class _Recorder:
 
     def __init__(self, spec: SceneSpec, name: str):
         self.spec = spec
-        self.effects = spec.resolved_effects
+        self.effects = effects_in(spec.resolved_effects, name)
         self.rng = sub_rng(spec.seed, f"sensor_{name}")
         (self.w, self.h), (self.dw, self.dh) = spec.rgb_size, spec.depth_size
         self.k_rgb = default_intrinsics(self.w, self.h)
@@ -82,6 +83,12 @@ class _Recorder:
         self.wb = SmoothNoise(self.rng, 2, self.effects.get("white_balance", {}).get("freq_hz", 0.3))
         self.dt = float(self.effects.get("time_offset", {}).get("seconds", 0.0))
         self.readout = float(self.effects.get("rolling_shutter", {}).get("readout_s", 0.0))
+        self.pose_lag = float(self.effects.get("pose_lag", {}).get("seconds", 0.0))
+
+    def recorded_pose_times(self, t: np.ndarray) -> np.ndarray:
+        """When each frame's recorded pose was really taken: with the depth map (``time_offset``),
+        less the pose stream's lag (``pose_lag``)."""
+        return t + self.dt - self.pose_lag
 
     def gain(self, t: float) -> np.ndarray:
         g = np.ones(3)
@@ -154,7 +161,8 @@ def generate_scene(spec: SceneSpec) -> SyntheticScene:
     rec = _Recorder(spec, "static")
     frames = [rec.frame(lambda _t: closed, path_s.world_from_camera, t) for t in t_s]
     true_s = path_s.world_from_camera(t_s)
-    recorded_s = drift_and_jitter(path_s.world_from_camera(t_s + rec.dt), t_s, effects, sub_rng(spec.seed, "pose_s"))
+    recorded_s = drift_and_jitter(path_s.world_from_camera(rec.recorded_pose_times(t_s)), t_s, rec.effects,
+                                  sub_rng(spec.seed, "pose_s"))
     static = rec.capture(ids_s, *zip(*[f[:3] for f in frames], strict=True), recorded_s)
 
     # Dynamic: a short sweep while the hand opens each part in turn.
@@ -171,8 +179,8 @@ def generate_scene(spec: SceneSpec) -> SyntheticScene:
     frames = [rec.frame(state_at, path_d.world_from_camera, t) for t in t_d]
     true_d = path_d.world_from_camera(t_d)
     canonical_from_session = session_transform(spec.seed, spec.session_offset_m)
-    in_session = invert_se3(canonical_from_session) @ path_d.world_from_camera(t_d + rec.dt)
-    recorded_d = drift_and_jitter(in_session, t_d, effects, sub_rng(spec.seed, "pose_d"))
+    in_session = invert_se3(canonical_from_session) @ path_d.world_from_camera(rec.recorded_pose_times(t_d))
+    recorded_d = drift_and_jitter(in_session, t_d, rec.effects, sub_rng(spec.seed, "pose_d"))
     dynamic = rec.capture(ids_d, *zip(*[f[:3] for f in frames], strict=True), recorded_d)
 
     labels = np.stack([f[3] for f in frames])

@@ -53,7 +53,7 @@ def test_registry_is_documented_and_recorded(with_effect):
         assert eff.name == name and len(eff.doc) > 40
         assert eff.target in {"rgb", "depth", "pose", "timing", "lens", "joint"}
     scene = with_effect("depth_bias", {"scale": 1.1})
-    assert scene.truth.effects == {"depth_bias": {"scale": 1.1, "offset_m": 0.01}}
+    assert scene.truth.effects == {"depth_bias": {"scale": 1.1, "offset_m": 0.01, "recordings": "both"}}
 
 
 def test_depth_bias_scales_and_offsets_valid_depth_only(base, with_effect):
@@ -133,6 +133,30 @@ def test_time_offset_samples_depth_and_pose_later_than_rgb(base, with_effect):
     same = np.isclose(scene.static.depth[:-1], base.static.depth[1:], atol=1e-5, equal_nan=True)
     assert same.mean() > 0.999  # identical up to rays that graze an edge
     assert not np.allclose(scene.static.depth[0], base.static.depth[0], equal_nan=True)
+
+
+def test_pose_lag_records_each_frame_with_an_earlier_pose_and_keeps_the_images(base, with_effect):
+    dt = 2 * base.spec.static_stride / 30.0  # two kept frames late
+    scene = with_effect("pose_lag", {"seconds": dt})
+    _unchanged(scene, base, poses=False)
+    # Frame i is recorded with the pose the camera had two frames earlier; the images are untouched.
+    np.testing.assert_allclose(scene.static.world_from_camera[2:], base.truth.static_world_from_camera[:-2], atol=1e-9)
+    dyn = scene.truth.canonical_from_dynamic_session @ scene.dynamic.world_from_camera
+    dt_d = 2 * base.spec.dynamic_stride / 30.0
+    early = with_effect("pose_lag", {"seconds": dt_d, "recordings": "dynamic"})
+    dyn_early = early.truth.canonical_from_dynamic_session @ early.dynamic.world_from_camera
+    np.testing.assert_allclose(dyn_early[2:], base.truth.dynamic_world_from_camera[:-2], atol=1e-9)
+    assert not np.allclose(dyn[1:], base.truth.dynamic_world_from_camera[1:], atol=1e-6)
+
+
+def test_an_effect_scoped_to_one_recording_leaves_the_other_alone(base, with_effect):
+    scene = with_effect("exposure", {"stops_std": 0.5, "recordings": "dynamic"})
+    np.testing.assert_array_equal(scene.static.rgb, base.static.rgb)
+    assert not np.array_equal(scene.dynamic.rgb, base.dynamic.rgb)
+    with pytest.raises(Exception, match="recordings"):
+        with_effect("exposure", {"recordings": "both-ish"})
+    with pytest.raises(Exception, match="unknown parameters"):
+        with_effect("axis_sag", {"recordings": "dynamic"})  # a joint effect moves the part in both
 
 
 def test_pose_drift_grows_with_time_in_recorded_poses_only(base, with_effect):
