@@ -34,6 +34,7 @@ from artitwin_core.change._canonical import CanonicalMesh
 from artitwin_core.change._detect import ChangeConfig, depth_tolerance, remove_small
 from artitwin_core.geometry import axis_angle_to_matrix, make_se3
 from artitwin_core.masks import MaskSequence
+from artitwin_core.parts import PartFate
 from artitwin_core.registration import backproject
 
 
@@ -95,6 +96,11 @@ class PartConfig:
             the slide, or at most this far outside it (metres; None: anywhere).
         min_part_support: a vanished surface becomes a part only if at least this many of its
             samples are supported at its fitted reference state.
+        host_reach_m, host_min_support_frac: a vanished surface whose samples come this close
+            (metres) to a part found before it, and of whose samples that part's motion supports
+            this fraction at its reference state (or that was fitted with the same joint), is
+            merged into that part: a door's strip along its hinge vanishes later than the rest of
+            it and is clustered apart by its onset.
         grow_free_space_m: grown points, moved back to the closed state, lie at most this far
             outside the canonical surface (metres); the reference state's error adds to it.
         hand_min_px: hand regions smaller than this (pixels, RGB resolution) are dropped.
@@ -136,6 +142,8 @@ class PartConfig:
     front_seen_min_q_m: float = 0.08
     door_slab_m: float = 0.06
     min_part_support: int = 20
+    host_reach_m: float = 0.03
+    host_min_support_frac: float = 0.5
     drawer_footprint_m: float | None = 0.02
     front_plane_tol_m: float = 0.01
     front_clear_m: float = 0.05
@@ -1483,11 +1491,15 @@ class PartSegmentation:
         masks: per-frame part labels, hand masks and scores (RGB resolution).
         models: the moving parts, in onset order (label k + 1 is ``models[k]``).
         states: ``[T, K]`` joint state of each part per frame (radians or metres).
+        candidates: ``[K]`` the candidate index (:func:`find_moved_parts` order) of each part.
+        fates: the candidates that are not a part of their own, and why (:func:`screen_candidates`).
     """
 
     masks: MaskSequence
     models: list[PartModel]
     states: np.ndarray
+    candidates: np.ndarray | None = None
+    fates: tuple[PartFate, ...] = ()
 
 
 def segment_part_at_frame(
@@ -1510,21 +1522,84 @@ def segment_part_at_frame(
         mesh: the canonical mesh (optional; sharper part extents).
 
     Returns:
-        the parts in onset order; empty when nothing moved.
+        the parts in onset order; empty when nothing moved (:func:`screen_candidates` also says
+        what became of the candidates that are not among them).
+    """
+    return screen_candidates(views, frame, gravity=gravity, mesh=mesh, config=config)[0]
+
+
+def screen_candidates(
+    views: list[FrameView],
+    frame: int | None = None,
+    *,
+    gravity=(0.0, -1.0, 0.0),
+    mesh: CanonicalMesh | None = None,
+    config: PartConfig | None = None,
+) -> tuple[list[PartModel], list[int], list[PartFate]]:
+    """:func:`segment_part_at_frame`, with every candidate accounted for.
+
+    Each vanished surface (:func:`find_moved_parts`, candidates numbered in its order) is fitted;
+    one that touches a part kept before it and moves with that part (the same joint, or that
+    part's motion explains what its reference frame sees of it) is merged into it: a door's strip
+    along its hinge vanishes later than the rest of it and is clustered apart. One that no motion
+    explains (too little of it supported at its fitted state) is dropped.
+
+    Returns:
+        the kept parts, the candidate index of each, and the fates of the others.
     """
     cfg = config or PartConfig()
-    models = []
-    for pts, onset in find_moved_parts(views, cfg):
+    models: list[PartModel] = []
+    kept: list[int] = []
+    fates: list[PartFate] = []
+    for i, (pts, onset) in enumerate(find_moved_parts(views, cfg)):
         up, frames = _fit_setup(pts, views, gravity, frame, cfg)
         model = _fit_ungrown(pts, onset, views, up, frames, cfg, mesh)
-        view = views[model.reference_frame]
-        if _reference_support(model, view, cfg) < cfg.min_part_support:
+        host = _host_part(model, models, views, cfg)
+        if host is not None:
+            k, why = host
+            models[k] = replace(models[k], closed_points=np.concatenate([models[k].closed_points, model.closed_points]))
+            fates.append(PartFate(candidate=i, fate="merged", stage="part_masks", into=kept[k], reason=why))
+            continue
+        support = _reference_support(model, views[model.reference_frame], cfg)
+        if support < cfg.min_part_support:
             # No motion of this surface explains what the reference frame sees: it vanished for
             # another reason. strong-hand-occlusion's cabinet side, seen edge-on, vanished from
             # the first frame on and came out as a second part with no support at all.
+            fates.append(PartFate(
+                candidate=i, fate="dropped", stage="part_masks",
+                reason=f"no motion of its {len(model.closed_points)} surface samples explains what frame "
+                f"{model.reference_frame} sees ({support} supported at its best fit; {cfg.min_part_support} needed)",
+            ))
             continue
         models.append(_fit_slide_and_grow(model, views, cfg, mesh))
-    return models
+        kept.append(i)
+    return models, kept, fates
+
+
+def _host_part(
+    model: PartModel, kept: list[PartModel], views: list[FrameView], cfg: PartConfig
+) -> tuple[int, str] | None:
+    """The kept part ``model``'s surface belongs to, with the reason, or None.
+
+    It must touch that part (closed samples within ``host_reach_m``) and move with it: the same
+    joint (``_same_joint``), or that part's motion at its reference state explains most of what
+    the reference frame sees of ``model``'s samples (supported, not seen through, and better than
+    the samples held still)."""
+    sub = _scoring_subset(model.closed_points)
+    for k, host in enumerate(kept):
+        gap = float(cKDTree(host.closed_points).query(sub, distance_upper_bound=cfg.host_reach_m)[0].min())
+        if not np.isfinite(gap):
+            continue
+        if _same_joint(model, host):
+            return k, f"it touches candidate part {k}'s surface ({1e3 * gap:.0f} mm) and was fitted with the same joint"
+        view = views[host.reference_frame]
+        m = host.motion(host.reference_q)
+        score, support, through = motion_score(view, sub @ m[:3, :3].T + m[:3, 3], sub, cfg)
+        still, _, _ = motion_score(view, sub, sub, cfg)
+        if support >= cfg.host_min_support_frac * len(sub) and score > max(still, 0.0):
+            return k, (f"it touches candidate part {k}'s surface ({1e3 * gap:.0f} mm) and that part's motion explains "
+                       f"{support} of its {len(sub)} samples in frame {host.reference_frame} ({through} seen through)")
+    return None
 
 
 def propagate_masks_backwards(
@@ -1609,5 +1684,6 @@ def segment_parts(
     """
     cfg = config or PartConfig()
     views = frame_views(dynamic, np.asarray(canonical_from_session, dtype=np.float64), mesh)
-    models = segment_part_at_frame(views, None, gravity=gravity, mesh=mesh, config=cfg)
-    return propagate_masks_backwards(models, views, dynamic, mesh, cfg)
+    models, kept, fates = screen_candidates(views, None, gravity=gravity, mesh=mesh, config=cfg)
+    seg = propagate_masks_backwards(models, views, dynamic, mesh, cfg)
+    return replace(seg, candidates=np.asarray(kept, dtype=np.int32), fates=tuple(fates))

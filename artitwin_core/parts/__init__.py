@@ -1,0 +1,11 @@
+"""Candidate parts and their fates: which of the part finder's candidates are parts.
+
+``settle_parts`` decides, once each candidate's tracks and joint fit are known, whether it is
+kept (a part with a joint of its own), merged into the part whose motion explains it, or dropped
+with the reason (``PartFate``); ``relabel`` applies the decision to the masks.
+"""
+
+from artitwin_core.parts._settle import PartDecision, SettleConfig, relabel, settle_parts
+from artitwin_core.parts._types import FATES, PartFate
+
+__all__ = ["FATES", "PartDecision", "PartFate", "SettleConfig", "relabel", "settle_parts"]

@@ -1,0 +1,343 @@
+"""Keep, merge or drop each candidate part once its tracks and joint fit are known.
+
+A real capture gives the part finder spurious candidates beside the real parts: the strip of a
+door along its hinge, which vanishes later than the rest of the door and is clustered apart; a
+piece of static surface at a depth edge; a region too small or too thin to track or to fuse. Each
+must end as one of three fates, and never take the run down:
+
+- **kept**: a part with a joint of its own (a fit that moves, and depth enough to build its mesh);
+- **merged** into a kept part: it has the same joint and states as that part, or no joint of its
+  own while that part's motion explains its depth: its points, moved back to a common state by
+  that part's joint, agree where held still they do not;
+- **dropped**, with the reason: too few depth points, no tracks or no fit, no motion of its own,
+  or nothing explains it.
+
+The kept parts are numbered again in the candidates' order (joint ``k``, final mask label
+``k + 1``); ``relabel`` applies the decision to the masks, so that masks, joints, the twin and the
+export agree on one set of parts.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+from dataclasses import dataclass, replace
+
+import cv2
+import numpy as np
+from scipy.spatial import cKDTree
+
+from artitwin_core._errors import InputError
+from artitwin_core.capture import Capture
+from artitwin_core.joints import Joint, joint_transforms
+from artitwin_core.masks import MaskSequence
+from artitwin_core.parts._types import PartFate
+from artitwin_core.tracking._lift import lift_pixels, pixel_rays
+
+
+@dataclass(frozen=True)
+class SettleConfig:
+    """Thresholds of :func:`settle_parts`.
+
+    Attributes:
+        min_depth_points: a part needs at least this many distinct depth pixels inside its mask
+            (hand excluded) over the recording: fewer build no mesh and no inertia.
+        max_points_per_frame: points lifted per frame for the motion tests.
+        min_frame_points: a frame takes part in the motion tests with at least this many points.
+        merge_max_misfit_m: a candidate with no joint of its own merges into a neighbouring part
+            when its points, in the frames that part's motion moved, moved back to the closed
+            state by that motion lie this close to its closed surface (seen in the frames the
+            motion had not moved yet; median nearest-neighbour distance, metres).
+        merge_min_ratio: ... and at least this many times closer than held still (the reverse:
+            it did not move while its neighbour did).
+        min_discrimination_m: only frames in which the part's motion moves the candidate's points
+            at least this far (median, metres) beyond the closed frames' can tell.
+        same_axis_deg, same_line_m: two fitted joints are the same joint when their axes are this
+            close (degrees) and, for rotations, their lines pass this close at the candidate (metres).
+        same_state_frac, same_state_floor: ... and their states agree within this fraction of the
+            part's range (median over frames), or within the floor (radians or metres).
+        adjacency_px: two candidates are neighbours when their masks, grown by this many pixels,
+            overlap in some frame.
+    """
+
+    min_depth_points: int = 40
+    max_points_per_frame: int = 600
+    min_frame_points: int = 10
+    merge_max_misfit_m: float = 0.02
+    merge_min_ratio: float = 2.0
+    min_discrimination_m: float = 0.03
+    same_axis_deg: float = 10.0
+    same_line_m: float = 0.05
+    same_state_frac: float = 0.15
+    same_state_floor: float = 0.02
+    adjacency_px: int = 4
+
+
+@dataclass(frozen=True)
+class PartDecision:
+    """What :func:`settle_parts` decided.
+
+    Attributes:
+        fates: one per candidate, in candidate order; ``part`` filled for kept and merged ones.
+        kept_labels: the candidate mask label of each final part, in final order (joint ``k``).
+        label_map: ``[M + 1]`` int32, the final mask label (``k + 1``, 0 = not a part) of each
+            candidate mask label (index 0 is 0).
+    """
+
+    fates: tuple[PartFate, ...]
+    kept_labels: tuple[int, ...]
+    label_map: np.ndarray
+
+
+@dataclass
+class _Candidate:
+    label: int
+    index: int
+    joint: Joint | None
+    tracks: int
+    frames: list[tuple[int, np.ndarray]]  # (frame, canonical points [N, 3])
+    depth_px: int
+    depth_frames: int
+
+
+def settle_parts(
+    dynamic: Capture,
+    masks: MaskSequence,
+    canonical_from_session: np.ndarray,
+    joints: dict[int, Joint],
+    *,
+    candidates: np.ndarray | None = None,
+    tracks: dict[int, int] | None = None,
+    earlier: Sequence[PartFate] = (),
+    config: SettleConfig | None = None,
+) -> PartDecision:
+    """Decide every candidate part's fate.
+
+    Args:
+        dynamic: the dynamic recording (its session frame), for the candidates' depth.
+        masks: the candidate part labels ``[T, H, W]`` (1..M) and hand masks of its frames.
+        canonical_from_session: ``[4, 4]`` the registration.
+        joints: candidate mask label -> the joint fitted to its tracks (canonical frame); a label
+            with no entry got none.
+        candidates: ``[M]`` the part finder's candidate index of each mask label; None: label - 1.
+        tracks: candidate mask label -> its valid tracks (for the reasons and which of two
+            same-joint candidates absorbs the other).
+        earlier: fates already decided (the part finder's, for candidates it never labelled; the
+            joint fit's, for labels it could not fit): kept in the result, their ``part`` filled.
+        config: thresholds.
+
+    Returns:
+        A :class:`PartDecision` covering every candidate.
+    """
+    cfg = config or SettleConfig()
+    part = np.asarray(masks.part)
+    if part.ndim != 3 or part.shape[0] != dynamic.num_frames:
+        raise InputError(
+            f"settle_parts: the masks are {part.shape} for a recording of {dynamic.num_frames} frames; "
+            "give the part masks of this recording."
+        )
+    n_labels = int(part.max()) if part.size else 0
+    if candidates is not None:
+        candidates = np.asarray(candidates, dtype=np.int64)
+        if candidates.shape[0] < n_labels:
+            raise InputError(f"settle_parts: {candidates.shape[0]} candidate indices for mask labels up to {n_labels}.")
+        n_labels = candidates.shape[0]
+    earlier_by_label = {f.label: f for f in earlier if f.label}
+    c_from_s = np.asarray(canonical_from_session, dtype=np.float64)
+    cands = {
+        lab: _lift_candidate(dynamic, masks, lab, lab - 1 if candidates is None else int(candidates[lab - 1]), joints.get(lab), (tracks or {}).get(lab, 0), c_from_s, cfg)
+        for lab in range(1, n_labels + 1)
+    }
+    decided: dict[int, PartFate] = {}
+    kept: list[int] = []
+    # A joint of its own, and depth enough: kept, unless it is the same joint as a kept neighbour's.
+    for lab, c in cands.items():
+        if c.depth_px < cfg.min_depth_points:
+            decided[lab] = _fate(c, "dropped", f"too few depth points: {c.depth_px} depth pixels inside its mask over "
+                                 f"{c.depth_frames} frames (at least {cfg.min_depth_points} are needed to build its mesh)")
+            continue
+        if c.joint is None or c.joint.joint_type == "fixed":
+            continue
+        twin = next((k for k in kept if _adjacent(part, k, lab, cfg) and _same_joint(cands[k], c, cfg)), None)
+        if twin is None:
+            kept.append(lab)
+            continue
+        big, small = (twin, lab) if cands[twin].tracks >= c.tracks else (lab, twin)
+        if big == lab:
+            kept[kept.index(twin)] = lab
+        decided[small] = _fate(cands[small], "merged", f"the same joint as candidate {cands[big].index} and moving "
+                               f"with it ({cands[small].tracks} tracks against {cands[big].tracks})", into=cands[big])
+    # No joint of its own: merged into the kept neighbour whose motion explains its depth, or dropped.
+    for lab, c in cands.items():
+        if lab in decided or lab in kept:
+            continue
+        why = _no_joint_reason(c, earlier_by_label.get(lab))
+        decided[lab] = _explain_or_drop(c, why, [cands[k] for k in kept if _adjacent(part, k, lab, cfg)], cfg)
+    return _resolve(cands, decided, kept, earlier, n_labels)
+
+
+def relabel(part: np.ndarray, label_map: np.ndarray) -> np.ndarray:
+    """``[T, H, W]`` uint8 candidate labels -> final labels by ``label_map`` (``PartDecision``)."""
+    lut = np.zeros(256, np.uint8)
+    lut[: len(label_map)] = np.asarray(label_map, dtype=np.uint8)
+    return lut[np.asarray(part, dtype=np.uint8)]
+
+
+def _fate(c: _Candidate, fate: str, reason: str = "", into: _Candidate | None = None) -> PartFate:
+    return PartFate(candidate=c.index, fate=fate, stage="settle_parts", reason=reason,
+                    into=None if into is None else into.index, label=c.label)
+
+
+def _lift_candidate(
+    dynamic: Capture, masks: MaskSequence, label: int, index: int, joint: Joint | None, tracks: int,
+    c_from_s: np.ndarray, cfg: SettleConfig,
+) -> _Candidate:
+    """The candidate's canonical depth points per frame (hand excluded) and its distinct depth pixels."""
+    frames, depth_px, depth_frames = [], 0, 0
+    for t in range(dynamic.num_frames):
+        v, u = np.nonzero((masks.part[t] == label) & ~np.asarray(masks.hand[t], bool))
+        if u.size == 0:
+            continue
+        pix = np.stack([u, v], -1).astype(np.float64)
+        pts, ok = lift_pixels(
+            pix, np.asarray(dynamic.depth[t]),
+            None if dynamic.confidence is None else np.asarray(dynamic.confidence[t]),
+            np.asarray(dynamic.rgb_intrinsics[t]), np.asarray(dynamic.depth_intrinsics[t]),
+            c_from_s @ np.asarray(dynamic.world_from_camera[t], np.float64), dynamic.distortion,
+        )
+        if not ok.any():
+            continue
+        # Distinct depth pixels: the RGB mask is finer than the depth map.
+        rays = pixel_rays(pix[ok], dynamic.rgb_intrinsics[t], dynamic.distortion)
+        fx, fy, cx, cy = (float(x) for x in dynamic.depth_intrinsics[t])
+        cells = np.unique(np.rint(np.stack([rays[:, 0] * fx + cx, rays[:, 1] * fy + cy], -1)).astype(np.int64), axis=0)
+        depth_px += len(cells)
+        depth_frames += 1
+        pts = pts[ok]
+        if len(pts) > cfg.max_points_per_frame:
+            pts = pts[np.linspace(0, len(pts) - 1, cfg.max_points_per_frame).astype(np.int64)]
+        frames.append((t, pts))
+    return _Candidate(label, index, joint, tracks, frames, depth_px, depth_frames)
+
+
+def _adjacent(part: np.ndarray, a: int, b: int, cfg: SettleConfig) -> bool:
+    """Whether candidates ``a`` and ``b`` touch (masks grown by ``adjacency_px``) in some frame."""
+    k = np.ones((2 * cfg.adjacency_px + 1,) * 2, np.uint8)
+    for t in range(part.shape[0]):
+        mb = part[t] == b
+        if not mb.any() or not (part[t] == a).any():
+            continue
+        if (cv2.dilate((part[t] == a).astype(np.uint8), k).astype(bool) & mb).any():
+            return True
+    return False
+
+
+def _same_joint(a: _Candidate, b: _Candidate, cfg: SettleConfig) -> bool:
+    """Whether ``b``'s fitted joint is ``a``'s: type, axis, line (rotations) and states agree."""
+    ja, jb = a.joint, b.joint
+    if ja is None or jb is None or ja.joint_type != jb.joint_type:
+        return False
+    ax_a = np.asarray(ja.axis, np.float64) / np.linalg.norm(ja.axis)
+    ax_b = np.asarray(jb.axis, np.float64) / np.linalg.norm(jb.axis)
+    cos = float(ax_a @ ax_b)
+    if abs(cos) < np.cos(np.radians(cfg.same_axis_deg)):
+        return False
+    if ja.joint_type != "prismatic":
+        at = np.concatenate([p for _, p in b.frames]).mean(0) if b.frames else np.asarray(jb.pivot, np.float64)
+        d = []
+        for j, ax in ((ja, ax_a), (jb, ax_b)):
+            off = at - np.asarray(j.pivot, np.float64)
+            d.append(off - (off @ ax) * ax)
+        if np.linalg.norm(d[0] - d[1]) > cfg.same_line_m:
+            return False
+    # Opposite axes describe the same motion with opposite states.
+    qa, qb = np.asarray(ja.q, np.float64), np.sign(cos) * np.asarray(jb.q, np.float64)
+    both = np.isfinite(qa) & np.isfinite(qb)
+    if not both.any():
+        return False
+    span = float(np.nanmax(np.abs(qa))) if np.isfinite(qa).any() else 0.0
+    return float(np.median(np.abs(qa[both] - qb[both]))) <= max(cfg.same_state_frac * span, cfg.same_state_floor)
+
+
+def _no_joint_reason(c: _Candidate, earlier: PartFate | None) -> str:
+    if c.joint is not None and c.joint.joint_type == "fixed":
+        return f"its {c.tracks} tracks show no motion of its own (fitted as fixed)"
+    if earlier is not None and earlier.reason:
+        return earlier.reason
+    return "no joint could be fitted" if c.tracks else "no point could be tracked on it"
+
+
+def _explain_or_drop(c: _Candidate, why: str, neighbours: list[_Candidate], cfg: SettleConfig) -> PartFate:
+    """Merged into the neighbour whose motion explains ``c``'s depth, or dropped saying why."""
+    tests = [(n, _misfits(c, n.joint, cfg)) for n in neighbours]
+    tests = [(n, m) for n, m in tests if m is not None]
+    if not tests:
+        where = "no kept part touches it" if not neighbours else "it is not seen both closed and moved by its neighbours"
+        return _fate(c, "dropped", f"{why}; {where}, so nothing tells whether it moves")
+    n, (moving, still) = min(tests, key=lambda nm: nm[1][0])
+    mm = (f"{1e3 * moving:.0f} mm from its closed surface moved back with candidate {n.index}, "
+          f"{1e3 * still:.0f} mm held still")
+    if moving <= cfg.merge_max_misfit_m and cfg.merge_min_ratio * moving <= still:
+        return _fate(c, "merged", f"{why}; candidate {n.index}'s motion explains its depth ({mm})", into=n)
+    if still <= cfg.merge_max_misfit_m and cfg.merge_min_ratio * still <= moving:
+        return _fate(c, "dropped", f"{why}; it did not move while its neighbour did ({mm})")
+    return _fate(c, "dropped", f"{why}; no kept part's motion explains its depth ({mm})")
+
+
+def _misfits(c: _Candidate, joint: Joint, cfg: SettleConfig) -> tuple[float, float] | None:
+    """How well ``joint``'s motion explains ``c``'s depth, against ``c`` holding still.
+
+    The frames in which ``joint`` has hardly moved ``c``'s points (less than a third of
+    ``min_discrimination_m``; at least the least moved frame) show its closed surface. Each frame
+    in which the motion moves its points at least ``min_discrimination_m`` is moved back to the
+    closed state by the joint: returns the median nearest-neighbour distance (metres) of those
+    points to the closed surface, and the same for the points held still. None when no frame
+    moves it enough."""
+    frames = [(t, p) for t, p in c.frames if len(p) >= cfg.min_frame_points and np.isfinite(joint.q[t])]
+    if len(frames) < 2:
+        return None
+    ts = np.array([t for t, _ in frames])
+    motions = joint_transforms(joint.joint_type, joint.axis, joint.pivot, np.asarray(joint.q, np.float64)[ts], joint.pitch)
+    closed, moved_by = [], []
+    for (_, pts), m in zip(frames, motions, strict=True):
+        back = (pts - m[:3, 3]) @ m[:3, :3]  # x = R c + t  =>  c = R^T (x - t)
+        closed.append(back)
+        moved_by.append(float(np.median(np.linalg.norm(pts - back, axis=1))))
+    moved_by = np.asarray(moved_by)
+    ref = moved_by <= max(cfg.min_discrimination_m / 3.0, float(moved_by.min()))
+    test = moved_by >= float(moved_by[ref].max()) + cfg.min_discrimination_m
+    if not test.any():
+        return None
+    tree = cKDTree(np.concatenate([closed[i] for i in np.flatnonzero(ref)]))
+    moving = [float(np.median(tree.query(closed[i])[0])) for i in np.flatnonzero(test)]
+    still = [float(np.median(tree.query(frames[i][1])[0])) for i in np.flatnonzero(test)]
+    return float(np.median(moving)), float(np.median(still))
+
+
+def _resolve(
+    cands: dict[int, _Candidate], decided: dict[int, PartFate], kept: list[int], earlier: Sequence[PartFate], n_labels: int
+) -> PartDecision:
+    """Number the kept parts, follow merges to the part they end in, and list every candidate."""
+    part_of_label = {lab: k for k, lab in enumerate(kept)}
+    label_of_index = {c.index: lab for lab, c in cands.items()}
+
+    def final(lab: int, seen: int = 0) -> int | None:
+        if lab in part_of_label:
+            return part_of_label[lab]
+        f = decided.get(lab)
+        if f is None or f.fate != "merged" or f.into is None or seen > n_labels:
+            return None
+        return final(label_of_index[f.into], seen + 1)
+
+    fates = [PartFate(candidate=cands[lab].index, fate="kept", stage="settle_parts", part=k, label=lab)
+             for k, lab in enumerate(kept)]
+    fates += [replace(f, part=final(lab)) for lab, f in decided.items()]
+    for f in earlier:
+        if f.label:
+            continue  # a labelled candidate: decided above
+        into = label_of_index.get(f.into) if f.into is not None else None
+        fates.append(replace(f, part=None if into is None else final(into)))
+    label_map = np.zeros(n_labels + 1, np.int32)
+    for lab in range(1, n_labels + 1):
+        k = final(lab)
+        label_map[lab] = 0 if k is None else k + 1
+    return PartDecision(tuple(sorted(fates, key=lambda f: f.candidate)), tuple(kept), label_map)
