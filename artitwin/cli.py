@@ -66,11 +66,13 @@ def _print_summary(summary: dict[str, Any], out: Path | None) -> None:
     for col in ("stage", "status", "seconds", "key"):
         table.add_column(col)
     for name, s in summary["stages"].items():
-        table.add_row(name, s["status"], f"{s['seconds']:.2f}", s["key"][:16])
+        table.add_row(name, s["status"], f"{s.get('seconds', 0.0):.2f}", s.get("key", "")[:16])
     Console().print(table)
     for name, s in summary["stages"].items():
         for note in s.get("notes", []):
             console.print(f"[yellow]{name}:[/] {note}")
+        if s.get("status") == "failed":
+            console.print(f"[bold red]{name} failed:[/] {s['error']}")
     for j in summary.get("joints", []):
         console.print(f"joint {j['name']}: {j['type']}, axis {[round(v, 3) for v in j['axis']]}, "
                       f"pivot {[round(v, 3) for v in j['pivot']]} m, range {[round(v, 3) for v in j['range']]}")
@@ -94,6 +96,23 @@ def _run_scene(scene: Path, out: Path, config, store: str | None, use_prefect: b
 
             summary = run_scene_inline(scene, config, _store_url(store), out=out)
     return summary
+
+
+def _run_and_report(scene: Path, out: Path, config, store: str | None, use_prefect: bool) -> None:
+    """Run the scene and print its summary; a failed stage still prints (and wrote) the summary,
+    then exits with status 1 naming the stage and its error."""
+    from flows._pipeline import SceneFailed
+
+    try:
+        summary = _run_scene(scene, out, config, store, use_prefect)
+    except SceneFailed as e:
+        _print_summary(e.summary, out)
+        _fail(f"{e}\nEverything that completed is in {out / 'summary.json'}"
+              + (f"; the static recording's diagnosis: artitwin diagnose {out}" if "diagnose_static" in e.summary["stages"] else ""),
+              code=1)
+    except ArtiTwinError as e:
+        _fail(str(e))
+    _print_summary(summary, out)
 
 
 @app.command()
@@ -127,11 +146,7 @@ def run(
             cfg = cfg.with_effects(effect)
         except ValueError as e:
             _fail(f"--effect: {e}")
-    try:
-        summary = _run_scene(scene, out, cfg, store, prefect)
-    except ArtiTwinError as e:
-        _fail(str(e))
-    _print_summary(summary, out)
+    _run_and_report(scene, out, cfg, store, prefect)
 
 
 @app.command()
@@ -147,8 +162,7 @@ def demo(
     if not (scene_dir / "scene.json").exists():
         with console.status("rendering the built-in example scene ..."):
             write_scene(generate_scene(BENCHMARK_SCENES["tiny"]), scene_dir)
-    summary = _run_scene(scene_dir, out, PipelineConfig.preset("quick"), store, prefect)
-    _print_summary(summary, out)
+    _run_and_report(scene_dir, out, PipelineConfig.preset("quick"), store, prefect)
 
 
 @app.command()

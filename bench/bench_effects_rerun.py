@@ -31,7 +31,7 @@ from schemas import DiagnosisReport, PipelineConfig, StageReport  # noqa: E402
 
 STATIC = "static recording"
 STAGES = ["ingest", "depth_calibration", "calibrate_depth", "refine_poses", "reconstruct", "reconstruct_report",
-          "register", "part_masks", "frame_poses", "correct_frame_poses", "track", "fit_joints", "joint_states", "predict_views", "diagnose"]
+          "register", "part_masks", "frame_poses", "correct_frame_poses", "track", "fit_joints", "settle_parts", "final_masks", "joint_states", "predict_views", "diagnose"]
 # injected synthetic effect(s) -> (catalog effect that models it, its target)
 CASES = {
     "exposure": ((("exposure", {}), ("white_balance", {})), "exposure_white_balance", "photometric"),

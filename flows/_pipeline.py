@@ -23,8 +23,9 @@ from typing import Any
 import numpy as np
 from PIL import Image
 
+from artitwin_core import ArtiTwinError
 from artitwin_core.capture import find_scene_recordings, recording_files
-from flows._runner import Executor, StageRun, raw_input
+from flows._runner import Executor, StageFailure, StageRun, raw_input
 from infra.store import ArtifactStore
 from schemas import (
     DepthCalibrationResult,
@@ -36,15 +37,33 @@ from schemas import (
     PoseDriftResult,
     Registration,
     StageReport,
+    TrajectoriesArtifact,
 )
 
-SUMMARY_VERSION = 1
+SUMMARY_VERSION = 2
 
 
-def scene_pipeline(scene: str | Path, config: PipelineConfig, ex: Executor) -> dict[str, Any]:
+class SceneFailed(ArtiTwinError):
+    """A scene run in which a stage failed; ``summary`` is what was written (``status: failed``,
+    the failed stage and its error, everything that completed, the static diagnosis if it ran)."""
+
+    def __init__(self, summary: dict[str, Any]):
+        failed = summary.get("failed_stages") or ["?"]
+        super().__init__(f"stage {failed[0]} failed: {summary.get('error', '')}")
+        self.summary = summary
+
+
+class PipelineHandles(dict):
+    """Stage handles by ``stage/label``, and the handle of the static capture every static stage
+    reads (after any correction), so a failed run can still diagnose the static recording."""
+
+    static_capture: Any = None
+
+
+def scene_pipeline(scene: str | Path, config: PipelineConfig, ex: Executor) -> PipelineHandles:
     """Submit every stage of one scene; returns handles by ``stage/label``."""
     recordings = find_scene_recordings(Path(scene))
-    h: dict[str, Any] = {}
+    h = PipelineHandles()
     caps = {}
     for label, path in (("static", recordings.static), ("dynamic", recordings.dynamic)):
         raw = raw_input(path, recording_files(path))
@@ -77,6 +96,7 @@ def scene_pipeline(scene: str | Path, config: PipelineConfig, ex: Executor) -> d
                 "calibrate_depth", config.calibrate_depth, {"capture": caps[label], "calibration": calibration}, label
             )
     static, dynamic = caps["static"], caps["dynamic"]
+    h.static_capture = static
     # I. canonical reconstruction of the static recording
     poses = h["refine_poses"] = ex.submit("refine_poses", config.refine_poses, {"capture": static}, "static")
     gaussians = h["reconstruct"] = ex.submit("reconstruct", recon_config, {"capture": static, "poses": poses}, "static")
@@ -114,7 +134,16 @@ def scene_pipeline(scene: str | Path, config: PipelineConfig, ex: Executor) -> d
     )
     # III. tracks and joints
     tracks = h["track"] = ex.submit("track", config.track, {"dynamic": dynamic, "masks": masks, "registration": reg}, "dynamic")
-    fitted = h["fit_joints"] = ex.submit("fit_joints", config.fit_joints, {"trajectories": tracks}, "dynamic")
+    fitted = h["fit_joints"] = ex.submit("fit_joints", config.fit_joints, {"trajectories": tracks, "masks": masks}, "dynamic")
+    # Every candidate part is kept, merged into the part whose motion explains it, or dropped; the
+    # stages below see the settled parts only (joint k, mask label k + 1), so they agree on them.
+    fitted = h["settle_parts"] = ex.submit(
+        "settle_parts",
+        config.settle_parts,
+        {"joints": fitted, "trajectories": tracks, "masks": masks, "dynamic": dynamic, "registration": reg},
+        "dynamic",
+    )
+    masks = h["final_masks"] = ex.submit("final_masks", config.settle_parts, {"masks": masks, "parts": fitted}, "dynamic")
     joints = h["joint_states"] = ex.submit(
         "joint_states",
         config.joint_states,
@@ -169,6 +198,30 @@ def scene_pipeline(scene: str | Path, config: PipelineConfig, ex: Executor) -> d
     return h
 
 
+def collect_runs(ex: Executor, handles: dict[str, Any]) -> tuple[dict[str, StageRun], dict[str, StageFailure]]:
+    """Wait for every submitted stage: what completed, and what failed or was skipped."""
+    runs, failures = {}, {}
+    for name, handle in handles.items():
+        result = ex.result(handle)
+        (failures if isinstance(result, StageFailure) else runs)[name] = result
+    return runs, failures
+
+
+def diagnose_failed_run(
+    config: PipelineConfig, ex: Executor, handles: PipelineHandles, runs: dict[str, StageRun], failures: dict[str, StageFailure]
+) -> None:
+    """When a stage failed and the scene's diagnosis did not run (it needs the joints), diagnose the
+    static recording alone (``diagnose_static``) if its prediction exists; adds to ``runs`` or
+    ``failures`` in place."""
+    if not failures or "diagnose" in runs or "predict_views" not in runs or handles.static_capture is None:
+        return
+    handle = ex.submit(
+        "diagnose_static", config.diagnose, {"capture": handles.static_capture, "prediction": handles["predict_views"]}, "static"
+    )
+    result = ex.result(handle)
+    (failures if isinstance(result, StageFailure) else runs)["diagnose_static"] = result
+
+
 def code_version() -> str:
     """Package version plus the git commit when run from a checkout (informational only)."""
     version = metadata.version("artitwin")
@@ -192,8 +245,10 @@ def build_summary(
     runs: dict[str, StageRun],
     started: float,
     config: PipelineConfig | None = None,
+    failures: dict[str, StageFailure] | None = None,
 ) -> dict[str, Any]:
-    """The machine-readable summary of a scene run (documented in docs/summary.md)."""
+    """The machine-readable summary of a scene run (documented in docs/summary.md); with
+    ``failures``, the failed and skipped stages beside what completed, and ``status: failed``."""
     stages = {}
     for name, run in runs.items():
         entry: dict[str, Any] = asdict(run)
@@ -237,14 +292,36 @@ def build_summary(
             entry["metrics"] = {k: _finite(v) for k, v in report.metrics.items()}
             entry["notes"] = list(report.conclusion)
             entry["effects_enabled"] = list(report.enabled)
+        elif run.kind == JointSet.kind:
+            js = store.get(run.key, JointSet)
+            entry["metrics"] = {"joints_count": float(len(js.joints))}
+            if js.fates:
+                entry["metrics"] |= {f"{x}_count": float(sum(f.fate == x for f in js.fates)) for x in ("kept", "merged", "dropped")}
+            entry["notes"] = list(js.notes) + [fate_line(f) for f in js.fates if f.stage == run.stage and f.fate != "kept"]
+            if run.stage == "settle_parts" and not js.joints:
+                entry["notes"].append("No moving part found: the twin is the static scene (its diagnosis still runs). "
+                                      "Check that a part moved in view of the dynamic recording.")
+        elif run.kind == TrajectoriesArtifact.kind:
+            traj = store.get(run.key, TrajectoriesArtifact)
+            entry["metrics"] = {"tracks_count": float(traj.valid.shape[1])}
+            entry["notes"] = list(traj.notes)
         elif run.kind == ExportBundle.kind:
             bundle = store.get(run.key, ExportBundle)
             entry["metrics"] = {k: _finite(v) for k, v in bundle.metrics.items()}
             entry["notes"] = list(bundle.notes)
             entry["files"] = bundle.paths
         stages[name] = entry
-    # The last joint set submitted is the final one (joint_states refines fit_joints' states).
+    for name, failure in (failures or {}).items():
+        stages[name] = {k: v for k, v in asdict(failure).items() if v != "" or k == "error"}
+    failed = [name for name, f in (failures or {}).items() if f.status == "failed"]
+    # The last joint set submitted is the final one (joint_states refines the settled parts' states).
     joint_runs = [run for run in runs.values() if run.kind == JointSet.kind]
+    final_set = store.get(joint_runs[-1].key, JointSet) if joint_runs else None
+    parts = [
+        {"candidate": f.candidate, "fate": f.fate, "part": f.part, "joint": None if f.part is None else f"joint_{f.part}",
+         "into_candidate": f.into, "stage": f.stage, "reason": f.reason}
+        for f in (final_set.fates if final_set is not None else [])
+    ]
     joints = [
         {
             "name": j.name,
@@ -257,17 +334,19 @@ def build_summary(
             "axis_se_rad": j.axis_se_rad,
             "pivot_se_m": j.pivot_se_m,
         }
-        for run in joint_runs[-1:]
-        for j in store.get(run.key, JointSet).joints
+        for j in (final_set.joints if final_set is not None else [])
     ]
     return {
         "summary_version": SUMMARY_VERSION,
+        "status": "failed" if failed else "ok",
+        **({"failed_stages": failed, "error": failures[failed[0]].error} if failed else {}),
         "scene": str(Path(scene).resolve()),
         "store": store.url,
         "code_version": code_version(),
         "started_at": started,
         "wall_seconds": time.time() - started,
         "stages": stages,
+        "parts": parts,
         "joints": joints,
         "exports": {},
         "effects": config.enabled_effects() if config is not None else [],
@@ -316,7 +395,8 @@ def write_exports(store: ArtifactStore, runs: dict[str, StageRun], out_dir: str 
         if run.kind == DiagnosisReport.kind:
             html = store.get(run.key, DiagnosisReport).html
             if html:
-                name = "diagnosis.html" if run.stage == "diagnose" else f"diagnosis{run.stage[len('diagnose'):]}.html"
+                # A failed run's static diagnosis stands in for the scene's: it is the diagnosis.
+                name = "diagnosis.html" if run.stage in ("diagnose", "diagnose_static") else f"diagnosis{run.stage[len('diagnose'):]}.html"
                 written[name] = str(_write_atomic(Path(out_dir) / name, html))
     runs_export = [r for r in runs.values() if r.kind == ExportBundle.kind]
     if not runs_export:
@@ -345,6 +425,16 @@ def _write_atomic(target: Path, text: str) -> Path:
     tmp.write_text(text)
     os.replace(tmp, target)
     return target
+
+
+def fate_line(fate: Any) -> str:
+    """One candidate part's fate in words (summary notes, the CLI)."""
+    if fate.stage == "fit_joints":  # settle_parts decides its fate from here
+        return f"candidate part {fate.candidate}: no joint of its own: {fate.reason}"
+    where = {"kept": f"kept as part {fate.part}", "dropped": "dropped"}.get(
+        fate.fate, f"merged into candidate {fate.into}" + ("" if fate.part is None else f" (part {fate.part})")
+    )
+    return f"candidate part {fate.candidate}: {where}" + (f": {fate.reason}" if fate.reason else "")
 
 
 def write_summary(summary: dict[str, Any], out_dir: str | Path) -> Path:

@@ -10,11 +10,12 @@ from __future__ import annotations
 import json
 import os
 import time
+import traceback
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any, Protocol
 
-from artitwin_core import TransientError
+from artitwin_core import ArtiTwinError, TransientError
 from infra.store import ArtifactStore, library_versions, manifest_key, stage_key
 from schemas import Artifact, StageConfig
 from tasks import STAGES, Stage
@@ -42,6 +43,27 @@ class StageRun:
     kind: str
     status: str  # "computed" or "cached"
     seconds: float
+
+
+@dataclass(frozen=True)
+class StageFailure:
+    """A stage that produced no output: it raised (``failed``), or an input's stage did not
+    complete so it never ran (``skipped``). A scene run collects these beside its ``StageRun`` s
+    and still writes its summary (``flows._pipeline.build_summary``)."""
+
+    stage: str
+    label: str
+    status: str  # "failed" or "skipped"
+    error: str  # "ExceptionType: message" (failed), or which input was missing (skipped)
+    seconds: float = 0.0
+    traceback: str = ""  # the innermost frames of an unexpected exception (a bug, not bad input)
+
+    @staticmethod
+    def of(stage: str, label: str, error: BaseException, seconds: float = 0.0) -> StageFailure:
+        """The failure of ``stage`` that raised ``error``; a traceback is kept unless the error is
+        one the project raises on purpose (``ArtiTwinError``: its message says what to do)."""
+        tb = "" if isinstance(error, ArtiTwinError) else "".join(traceback.format_exception(error, limit=-4))
+        return StageFailure(stage, label, "failed", f"{type(error).__name__}: {error}", seconds, tb)
 
 
 def raw_input(path: str | Path, files: list[Path]) -> RawInput:
@@ -120,10 +142,10 @@ def inject_faults(stage_name: str, label: str, inputs: dict[str, RawInput | Stag
     ``$ARTITWIN_FAULTS`` names a directory.
 
     Each ``*.json`` file there is one fault: ``{"stage": ..., "label": ..., "path_contains": ...,
-    "action": "transient" | "hold", "until": FILE, "timeout_s": S}`` (all match fields optional).
-    The first computation that matches claims the file by renaming it (exactly one process wins,
-    so a fault fires once across workers), then raises a ``TransientError`` or holds, under the
-    key's lease, until ``until`` exists.
+    "action": "transient" | "fail" | "hold", "until": FILE, "timeout_s": S}`` (all match fields
+    optional). The first computation that matches claims the file by renaming it (exactly one
+    process wins, so a fault fires once across workers), then raises a ``TransientError``, raises a
+    ``RuntimeError`` (``fail``), or holds, under the key's lease, until ``until`` exists.
     """
     folder = os.environ.get("ARTITWIN_FAULTS")
     if not folder or not os.path.isdir(folder):
@@ -151,6 +173,8 @@ def inject_faults(stage_name: str, label: str, inputs: dict[str, RawInput | Stag
             while not os.path.exists(spec["until"]) and time.monotonic() < deadline:
                 time.sleep(0.1)
             return
+        if spec.get("action") == "fail":
+            raise RuntimeError(f"injected failure in {stage_name}[{label}] ({name})")
         raise TransientError(f"injected transient fault in {stage_name}[{label}] ({name})")
 
 
@@ -197,13 +221,29 @@ class PlanExecutor:
 
 
 class InlineExecutor:
-    """Runs each stage immediately in this process, no Prefect involved."""
+    """Runs each stage immediately in this process, no Prefect involved.
+
+    A stage that raises becomes a ``StageFailure`` handle instead of an exception, and every stage
+    that needs its output is skipped: the rest of the scene runs and the summary says what failed."""
 
     def __init__(self, store: ArtifactStore) -> None:
         self.store = store
 
-    def submit(self, stage_name: str, config: StageConfig, inputs: dict[str, Any], label: str) -> StageRun:
-        return run_stage(self.store, STAGES[stage_name], config, inputs, label=label)
+    def submit(self, stage_name: str, config: StageConfig, inputs: dict[str, Any], label: str) -> StageRun | StageFailure:
+        missing = [v for v in inputs.values() if isinstance(v, StageFailure)]
+        if missing:
+            return skipped(stage_name, label, missing[0])
+        start = time.perf_counter()
+        try:
+            return run_stage(self.store, STAGES[stage_name], config, inputs, label=label)
+        except Exception as e:  # noqa: BLE001 (a failed stage is reported, not raised: see the class)
+            return StageFailure.of(stage_name, label, e, time.perf_counter() - start)
 
-    def result(self, handle: StageRun) -> StageRun:
+    def result(self, handle: StageRun | StageFailure) -> StageRun | StageFailure:
         return handle
+
+
+def skipped(stage_name: str, label: str, cause: StageFailure) -> StageFailure:
+    """``stage_name`` not run because the stage of one of its inputs did not complete."""
+    origin = cause.error if cause.status == "skipped" else f"{cause.stage} failed"
+    return StageFailure(stage_name, label, "skipped", origin if origin.startswith("not run") else f"not run: {origin}")

@@ -31,7 +31,9 @@ def read_summary(path: str | Path) -> tuple[Path, dict[str, Any]]:
     return file.parent, summary
 
 
-DIAGNOSIS_STAGES = ("diagnose", "diagnose_dynamic")  # the static recording and joints; the dynamic recording
+# The static recording and joints (or, in a run that failed before them, the static recording
+# alone); the dynamic recording.
+DIAGNOSIS_STAGES = ("diagnose", "diagnose_static", "diagnose_dynamic")
 
 
 def rerun_effects(report: DiagnosisReport, modelled: list[str]) -> tuple[list[str], list[str]]:
@@ -60,11 +62,11 @@ def rerun_effects(report: DiagnosisReport, modelled: list[str]) -> tuple[list[st
 def diagnosis_of(summary: dict[str, Any], where: Path) -> DiagnosisReport | None:
     """The run's diagnosis from its store: the ``diagnose`` report, with the dynamic recording's
     (``diagnose_dynamic``) findings, metrics, curves and conclusion merged in when the run has
-    it. None when the run had no diagnose stage."""
+    it; in a failed run, the static recording's (``diagnose_static``). None when the run has none."""
     reports = []
     for stage in DIAGNOSIS_STAGES:
         entry = summary["stages"].get(stage)
-        if entry is None:
+        if entry is None or entry.get("status") in ("failed", "skipped"):
             continue
         try:
             reports.append(ArtifactStore(summary["store"]).get(entry["key"], DiagnosisReport))

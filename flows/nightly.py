@@ -25,9 +25,9 @@ from prefect.task_runners import ThreadPoolTaskRunner
 from artitwin_core import ArtiTwinError
 from artitwin_core.capture import find_scene_recordings, recording_files
 from flows._env import default_store_url
-from flows._pipeline import build_summary, scene_pipeline, write_summary
+from flows._pipeline import PipelineHandles, scene_pipeline
 from flows._runner import Executor, PlanExecutor, StageRun, raw_input
-from flows.scene import PrefectExecutor
+from flows.scene import PrefectExecutor, finish_scene
 from infra.store import ArtifactStore, canonical_json
 from schemas import PipelineConfig
 
@@ -52,10 +52,12 @@ class SelectedExecutor:
         return self.inner.result(handle)
 
 
-def select_pipeline(scene: str | Path, config: PipelineConfig, ex: Executor, stages: Stages = None) -> dict[str, Any]:
+def select_pipeline(scene: str | Path, config: PipelineConfig, ex: Executor, stages: Stages = None) -> PipelineHandles:
     """``scene_pipeline`` restricted to ``stages``: handles by ``stage/label`` of what was submitted."""
     handles = scene_pipeline(scene, config, SelectedExecutor(ex, stages))
-    return {name: h for name, h in handles.items() if h is not None}
+    out = PipelineHandles({name: h for name, h in handles.items() if h is not None})
+    out.static_capture = handles.static_capture
+    return out
 
 
 @dataclass(frozen=True)
@@ -147,11 +149,8 @@ def scene_stages(scene: str, config: PipelineConfig, store: str, out: str | None
     """``reconstruct_scene`` restricted to ``stages``: one Prefect task per stage, cached in the store."""
     started = time.time()
     ex = PrefectExecutor(store)
-    runs = {name: ex.result(h) for name, h in select_pipeline(scene, config, ex, stages).items()}
-    summary = build_summary(scene, ArtifactStore(store), runs, started, config)
-    if out:
-        write_summary(summary, out)
-    return summary
+    handles = select_pipeline(scene, config, ex, stages)
+    return finish_scene(scene, config, ex, handles, ArtifactStore(store), started, out or None, exports=False)
 
 
 @flow(name="process-scene", log_prints=True)

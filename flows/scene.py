@@ -13,8 +13,16 @@ from prefect.tasks import exponential_backoff
 
 from artitwin_core import InputError, TransientError
 from flows._env import default_store_url
-from flows._pipeline import build_summary, scene_pipeline, write_exports, write_summary
-from flows._runner import StageRun, run_stage
+from flows._pipeline import (
+    SceneFailed,
+    build_summary,
+    collect_runs,
+    diagnose_failed_run,
+    scene_pipeline,
+    write_exports,
+    write_summary,
+)
+from flows._runner import StageFailure, StageRun, run_stage, skipped
 from flows._runs import rerun_effects
 from infra.store import ArtifactStore, StoreError
 from schemas import DiagnosisReport, PipelineConfig, StageConfig, StageReport
@@ -87,18 +95,59 @@ def _publish_ui_artifact(store: ArtifactStore, run: StageRun) -> None:
     )
 
 
+class _Submitted:
+    """A Prefect future with the stage it runs, so a failure can be reported by name."""
+
+    def __init__(self, future: PrefectFuture, stage: str, label: str) -> None:
+        self.future, self.stage, self.label = future, stage, label
+
+
 class PrefectExecutor:
-    """Submits each stage as a Prefect task; dependencies pass as futures of references."""
+    """Submits each stage as a Prefect task; dependencies pass as futures of references.
+
+    A stage whose input's task failed is not run by Prefect (its state is ``NotReady``); ``result``
+    reports it as skipped and a failed one as failed (``StageFailure``), so the scene's summary
+    still gets written."""
 
     def __init__(self, store_url: str) -> None:
         self.store_url = store_url
 
-    def submit(self, stage_name: str, config: StageConfig, inputs: dict[str, Any], label: str) -> PrefectFuture:
+    def submit(self, stage_name: str, config: StageConfig, inputs: dict[str, Any], label: str) -> _Submitted | StageFailure:
+        missing = [v for v in inputs.values() if isinstance(v, StageFailure)]
+        if missing:
+            return skipped(stage_name, label, missing[0])
         named = stage_task.with_options(name=stage_name, task_run_name=f"{stage_name}[{label}]")
-        return named.submit(self.store_url, stage_name, config, inputs, label)
+        args = {k: v.future if isinstance(v, _Submitted) else v for k, v in inputs.items()}
+        return _Submitted(named.submit(self.store_url, stage_name, config, args, label), stage_name, label)
 
-    def result(self, handle: PrefectFuture) -> StageRun:
-        return handle.result()
+    def result(self, handle: _Submitted | StageFailure) -> StageRun | StageFailure:
+        if isinstance(handle, StageFailure):
+            return handle
+        try:
+            return handle.future.result()
+        except Exception as e:  # noqa: BLE001 (reported in the summary)
+            if handle.future.state.name == "NotReady":
+                return StageFailure(handle.stage, handle.label, "skipped", "not run: an input's stage did not complete")
+            return StageFailure.of(handle.stage, handle.label, e)
+
+
+def finish_scene(
+    scene: str | Path, config: PipelineConfig, ex: Any, handles: Any, store: ArtifactStore, started: float,
+    out: str | Path | None, exports: bool = True,
+) -> dict[str, Any]:
+    """Wait for the stages, diagnose the static recording if the run failed before its diagnosis,
+    write ``summary.json`` (and with ``exports`` the export files and reports) under ``out``, and
+    return the summary; raises ``SceneFailed`` (holding the summary) when a stage failed."""
+    runs, failures = collect_runs(ex, handles)
+    diagnose_failed_run(config, ex, handles, runs, failures)
+    summary = build_summary(scene, store, runs, started, config, failures)
+    if out is not None:
+        if exports:
+            summary["exports"] = write_exports(store, runs, out)
+        write_summary(summary, out)
+    if summary["status"] == "failed":
+        raise SceneFailed(summary)
+    return summary
 
 
 @flow(name="reconstruct-scene", log_prints=True)
@@ -108,42 +157,36 @@ def reconstruct_scene(
     store: str | None = None,
     out: str | None = None,
 ) -> dict[str, Any]:
-    """Run every stage for the scene folder ``scene``; return (and write to ``out``) the summary."""
+    """Run every stage for the scene folder ``scene``; return (and write to ``out``) the summary.
+
+    Raises:
+        SceneFailed: a stage failed; ``summary.json`` was written all the same.
+    """
     started = time.time()
     config = config or PipelineConfig()
     store_url = store or default_store_url()
     ex = PrefectExecutor(store_url)
     handles = scene_pipeline(scene, config, ex)
-    runs = {name: ex.result(h) for name, h in handles.items()}
-    st = ArtifactStore(store_url)
-    summary = build_summary(scene, st, runs, started, config)
-    if out:
-        summary["exports"] = write_exports(st, runs, out)
-        write_summary(summary, out)
-    return summary
+    return finish_scene(scene, config, ex, handles, ArtifactStore(store_url), started, out)
 
 
 def run_scene_inline(
     scene: str | Path, config: PipelineConfig | None = None, store: str | None = None, out: str | Path | None = None
 ) -> dict[str, Any]:
     """The same pipeline without Prefect (scripts, benchmarks of raw stage cost); with ``out``,
-    writes the exports and ``summary.json`` there as ``reconstruct_scene`` does."""
+    writes the exports and ``summary.json`` there as ``reconstruct_scene`` does, and like it raises
+    ``SceneFailed`` when a stage failed."""
     from flows._runner import InlineExecutor
 
     started = time.time()
     st = ArtifactStore(store or default_store_url())
     ex = InlineExecutor(st)
     config = config or PipelineConfig()
-    runs = {name: ex.result(h) for name, h in scene_pipeline(scene, config, ex).items()}
-    summary = build_summary(scene, st, runs, started, config)
-    if out is not None:
-        summary["exports"] = write_exports(st, runs, out)
-        write_summary(summary, out)
-    return summary
+    return finish_scene(scene, config, ex, scene_pipeline(scene, config, ex), st, started, out)
 
 
 def stage_names() -> list[str]:
     return list(STAGES)
 
 
-__all__ = ["PrefectExecutor", "reconstruct_scene", "run_scene_inline", "stage_task"]
+__all__ = ["PrefectExecutor", "SceneFailed", "finish_scene", "reconstruct_scene", "run_scene_inline", "stage_task"]

@@ -14,6 +14,7 @@ from schemas._artifacts import (
     JointParams,
     JointSet,
     MaskSequenceArtifact,
+    PartFateArtifact,
     PoseDriftResult,
     Registration,
     ReportImage,
@@ -40,6 +41,7 @@ from schemas._configs import (
     PipelineConfig,
     PoseDriftConfig,
     RegisterConfig,
+    SettlePartsConfig,
     TrackConfig,
 )
 from schemas._diagnose import (
@@ -83,7 +85,9 @@ __all__ = [
     "JointParams",
     "JointSet",
     "MaskSequenceArtifact",
+    "PartFateArtifact",
     "PipelineConfig",
+    "SettlePartsConfig",
     "DepthCalibrationResult",
     "PoseDriftResult",
     "Registration",

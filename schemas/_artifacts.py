@@ -190,22 +190,51 @@ class FramePoseCorrections(Artifact):
 # ----------------------------------------------------------------------------------------------
 
 
+class PartFateArtifact(Artifact):
+    """What became of one candidate part (mirrors ``artitwin_core.parts.PartFate``)."""
+
+    kind = "part_fate"
+    schema_version = 1
+
+    candidate: int = Field(description="The candidate's index in the part finder's list (onset order).")
+    fate: str = Field(description="'kept' (a part with a joint of its own), 'merged' (into the part whose motion explains it) or 'dropped'.")
+    stage: str = Field(description="The stage that decided: part_masks, fit_joints or settle_parts.")
+    reason: str = Field(default="", description="Why, in words with the numbers that decided; empty when kept.")
+    into: int | None = Field(default=None, description="Merged: the candidate it joined; else None.")
+    part: int | None = Field(
+        default=None, description="The final part it is or joined (joint k, final mask label k + 1, link part_k); None when dropped."
+    )
+    label: int = Field(default=0, description="Its mask label in part_masks' masks; 0 when it was never labelled.")
+
+
 class MaskSequenceArtifact(Artifact):
-    """Per-frame part and hand masks of the dynamic recording (mirrors ``artitwin_core.masks.MaskSequence``)."""
+    """Per-frame part and hand masks of the dynamic recording (mirrors ``artitwin_core.masks.MaskSequence``).
+
+    ``part_masks`` labels its candidate parts (``candidates`` says which); ``final_masks`` relabels
+    them to the settled parts (label k + 1 = joint k), and carries every candidate's fate."""
 
     kind = "mask_sequence"
-    schema_version = 1
+    schema_version = 2
 
     part: Array("uint8", "T H W") = Field(description="Part labels at RGB resolution: 0 = not a moving part, k + 1 = part k, [T, H, W].")
     hand: Array("bool", "T H W") = Field(description="Hand and arm pixels at RGB resolution, [T, H, W].")
     score: Array("float32", "T") = Field(description="Per-frame confidence of the part mask in [0, 1], [T].")
+    candidates: Array("int32", "K") | None = Field(
+        default=None,
+        description="The part finder's candidate index of each label (label k + 1 is candidates[k]), [K]; None: label - 1.",
+    )
+    fates: list[PartFateArtifact] = Field(
+        default_factory=list,
+        description="Candidates that are not (or not only) a label here, and why: those the part finder merged or dropped "
+        "before labelling; in the final masks, every candidate.",
+    )
 
 
 class TrajectoriesArtifact(Artifact):
     """Point tracks over a recording, padded (mirrors ``artitwin_core.tracking.Trajectories``)."""
 
     kind = "trajectories"
-    schema_version = 1
+    schema_version = 2
 
     points_in_world: Array("float64", "T N 3") = Field(
         description="3D track positions in the canonical frame, metres, [T, N, 3]; NaN where invalid."
@@ -216,6 +245,7 @@ class TrajectoriesArtifact(Artifact):
     part_ids: Array("int32", "N") | None = Field(
         default=None, description="Moving part of each track (0 = mask label 1), [N]; None when all are on one part."
     )
+    notes: list[str] = Field(default_factory=list, description="Parts whose tracking failed, and why.")
 
 
 # ----------------------------------------------------------------------------------------------
@@ -253,10 +283,14 @@ class JointParams(Artifact):
 
 
 class JointSet(Artifact):
-    """All joints of a scene (one per moving part), with the fit's model-selection evidence."""
+    """All joints of a scene (one per moving part), with the fit's model-selection evidence.
+
+    ``fit_joints`` fits the candidate parts (``mask_labels``: whose tracks each joint was fitted to);
+    ``settle_parts`` keeps, merges or drops each candidate and numbers the kept ones again (joint
+    k moves final mask label k + 1; ``label_map`` maps the candidate labels onto those)."""
 
     kind = "joint_set"
-    schema_version = 2
+    schema_version = 3
 
     joints: list[JointParams] = Field(description="One joint per moving part, in the canonical frame.")
     selection: dict[str, dict[str, float]] = Field(
@@ -272,6 +306,20 @@ class JointSet(Artifact):
     timestamps: Array("float64", "T") | None = Field(
         default=None, description="The frames' RGB times (seconds) when rgb_time_offset_s is not 0, [T]; else None."
     )
+    mask_labels: list[int] | None = Field(
+        default=None,
+        description="The candidate mask label (part_masks' masks, and the tracks' part_ids + 1) of each joint; None: "
+        "joint k is label k + 1.",
+    )
+    label_map: Array("int32", "L") | None = Field(
+        default=None,
+        description="Settled sets: the final mask label (k + 1 = joint k, 0 = not a part) of each candidate mask label, "
+        "[L] (index 0 unused); None: the candidate labels are final.",
+    )
+    fates: list[PartFateArtifact] = Field(
+        default_factory=list, description="What became of the candidate parts: every candidate once settled."
+    )
+    notes: list[str] = Field(default_factory=list, description="Per-part problems the stage contained (a failed fit or refinement), in words.")
 
 
 # ----------------------------------------------------------------------------------------------

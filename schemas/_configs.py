@@ -137,6 +137,39 @@ class JointConfig(StageConfig):
     )
 
 
+class SettlePartsConfig(StageConfig):
+    """Which candidate parts are parts: kept, merged into the part whose motion explains them, or dropped
+    (see artitwin_core.parts.SettleConfig, whose fields these are)."""
+
+    min_depth_points: int = Field(
+        default=40, ge=0,
+        description="A part needs at least this many distinct depth pixels inside its mask (hand excluded) over the "
+        "recording: fewer build no mesh and no inertia, and it is dropped.",
+    )
+    max_points_per_frame: int = Field(default=600, ge=10, description="Points lifted per frame for the motion tests.")
+    min_frame_points: int = Field(default=10, ge=3, description="A frame takes part in the motion tests with at least this many points.")
+    merge_max_misfit_m: float = Field(
+        default=0.02, gt=0,
+        description="A candidate with no joint of its own merges into a neighbouring part when its points, in the frames "
+        "that part's motion moved, moved back to the closed state by it lie this close to its closed surface (median "
+        "nearest-neighbour distance, metres)...",
+    )
+    merge_min_ratio: float = Field(
+        default=2.0, ge=1, description="... and at least this many times closer than held still (the reverse: it did not move)."
+    )
+    min_discrimination_m: float = Field(
+        default=0.03, gt=0,
+        description="Only frames in which the neighbour's motion moves the candidate this far beyond its closed frames (metres) can tell.",
+    )
+    same_axis_deg: float = Field(default=10.0, gt=0, description="Two fitted joints are one when their axes are this close, degrees...")
+    same_line_m: float = Field(default=0.05, gt=0, description="... their lines (rotations) pass this close at the candidate, metres...")
+    same_state_frac: float = Field(
+        default=0.15, ge=0, description="... and their states agree within this fraction of the range (median over frames)"
+    )
+    same_state_floor: float = Field(default=0.02, ge=0, description="... or within this (radians or metres).")
+    adjacency_px: int = Field(default=4, ge=0, description="Candidates whose masks, grown by this many pixels, overlap in a frame are neighbours.")
+
+
 class JointStateConfig(StageConfig):
     """Refining each rotational joint's per-frame state from depth (see artitwin_core.joints.refine_joint_states)."""
 
@@ -234,6 +267,9 @@ class PipelineConfig(StageConfig):
     )
     track: TrackConfig = Field(default_factory=TrackConfig, description="3D point tracks on the parts.")
     fit_joints: JointConfig = Field(default_factory=JointConfig, description="Joint fitting.")
+    settle_parts: SettlePartsConfig = Field(
+        default_factory=SettlePartsConfig, description="Which candidate parts are kept, merged or dropped (and why)."
+    )
     joint_states: JointStateConfig = Field(
         default_factory=JointStateConfig, description="Per-frame joint states refined from depth."
     )

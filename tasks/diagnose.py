@@ -207,6 +207,8 @@ def _track_data(joints: JointSet, trajectories: TrajectoriesArtifact, config: Di
         return []
     n_frames = trajectories.points_in_world.shape[0]
     part_ids = trajectories.part_ids if trajectories.part_ids is not None else np.zeros(trajectories.valid.shape[1], np.int32)
+    # The tracks are the candidate parts'; a settled set says which part each candidate became.
+    part_of_track = part_ids if joints.label_map is None else joints.label_map[part_ids + 1].astype(np.int64) - 1
     out = []
     for k, jp in enumerate(joints.joints):
         if jp.q.shape[0] != n_frames:
@@ -214,7 +216,7 @@ def _track_data(joints: JointSet, trajectories: TrajectoriesArtifact, config: Di
                 f"diagnose: joint {jp.name!r} has {jp.q.shape[0]} states but the trajectories have {n_frames} frames; "
                 "fit the joints on these trajectories."
             )
-        keep = part_ids == k
+        keep = part_of_track == k
         if np.count_nonzero(trajectories.valid[:, keep].any(0)) < config.min_tracks_count or jp.joint_type == "fixed":
             continue
         joint = to_core(Joint, jp)
@@ -390,7 +392,7 @@ def self_consistency(capture: CaptureArtifact, config: DiagnoseConfig) -> tuple[
     return findings, lines
 
 
-@stage(name="diagnose", version=6, config=DiagnoseConfig, output=DiagnosisReport)
+@stage(name="diagnose", version=7, config=DiagnoseConfig, output=DiagnosisReport)
 def diagnose_twin(
     capture: CaptureArtifact,
     prediction: ViewPrediction,
@@ -417,6 +419,17 @@ def diagnose_twin(
         "conclusion": list(report.conclusion) + lines,
         "no_effect_needed": report.no_effect_needed and not any(f.enabled for f in findings),
     })
+
+
+@stage(name="diagnose_static", version=1, config=DiagnoseConfig, output=DiagnosisReport)
+def diagnose_static(capture: CaptureArtifact, prediction: ViewPrediction, config: DiagnoseConfig) -> DiagnosisReport:
+    """``diagnose`` with no joints: the static recording against its predicted views (and itself).
+    A scene run whose joints could not be fitted (a stage failed) still gets this, because a failing
+    scene is when a user most needs to know why."""
+    empty = TrajectoriesArtifact(
+        points_in_world=np.zeros((0, 0, 3)), pixels=np.zeros((0, 0, 2), np.float32), valid=np.zeros((0, 0), bool)
+    )
+    return diagnose_twin.fn(capture, prediction, JointSet(joints=[]), empty, config)
 
 
 @stage(name="diagnose_dynamic", version=2, config=DiagnoseConfig, output=DiagnosisReport)

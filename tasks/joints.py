@@ -23,6 +23,7 @@ from schemas import (
     JointSet,
     JointStateConfig,
     MaskSequenceArtifact,
+    PartFateArtifact,
     Registration,
     TrajectoriesArtifact,
 )
@@ -49,23 +50,44 @@ def _subset(traj: Trajectories, keep: np.ndarray) -> Trajectories:
     return Trajectories(traj.points_in_world[:, keep], traj.pixels[:, keep], traj.valid[:, keep], traj.query_frame)
 
 
-@stage(name="fit_joints", version=8, config=JointConfig, output=JointSet)
-def fit_joints(trajectories: TrajectoriesArtifact, config: JointConfig) -> JointSet:
-    """Fit a joint to each part's tracks; the model-selection scores go in ``selection``."""
+@stage(name="fit_joints", version=9, config=JointConfig, output=JointSet)
+def fit_joints(trajectories: TrajectoriesArtifact, masks: MaskSequenceArtifact, config: JointConfig) -> JointSet:
+    """Fit a joint to each candidate part's tracks; the model-selection scores go in ``selection``.
+
+    ``joint_<k>`` is fitted to the tracks of mask label ``k + 1`` (``mask_labels``). A candidate
+    with no tracks, or whose fit fails, gets no joint but a fate saying why (``settle_parts``
+    decides whether it merges into a neighbour or is dropped); the other candidates are fitted
+    all the same."""
     traj = to_core(Trajectories, trajectories)
     part_ids = traj.part_ids if traj.part_ids is not None else np.zeros(traj.valid.shape[1], np.int32)
-    joints, selection = [], {}
-    for part in np.unique(part_ids):
-        fit = estimate_joint(_subset(traj, part_ids == part), _fit_config(config), reference_frame=config.reference_frame)
-        name = f"joint_{int(part)}"
+    labels = [int(v) for v in np.unique(masks.part) if v > 0]
+    joints, selection, fitted, fates = [], {}, [], []
+    for label in labels:
+        keep = part_ids == label - 1
+        n_tracks = int(np.count_nonzero(traj.valid[:, keep].any(0)))
+        try:
+            fit = estimate_joint(_subset(traj, keep), _fit_config(config), reference_frame=config.reference_frame)
+        except Exception as e:  # noqa: BLE001 (one candidate's failure is its own: it is reported, the others go on)
+            why = "no point could be tracked on it" if n_tracks == 0 else f"no joint could be fitted to its {n_tracks} tracks ({e})"
+            fates.append(PartFateArtifact(candidate=candidate_index(masks, label), fate="dropped", stage="fit_joints",
+                                          reason=why, label=label))
+            continue
+        name = f"joint_{label - 1}"
         joints.append(to_artifact(JointParams, fit.joint, name=name))
+        fitted.append(label)
         selection[name] = {f"bic_{h.joint_type}": float(h.bic) for h in fit.hypotheses}
         selection[name]["noise_sigma_m"] = float(fit.noise_sigma_m)
         selection[name]["inlier_tracks_count"] = float(np.count_nonzero(fit.inlier_mask))
-    return JointSet(joints=joints, selection=selection)
+        selection[name]["tracks_count"] = float(n_tracks)
+    return JointSet(joints=joints, selection=selection, mask_labels=fitted, fates=fates)
 
 
-@stage(name="joint_states", version=8, config=JointStateConfig, output=JointSet)
+def candidate_index(masks: MaskSequenceArtifact, label: int) -> int:
+    """The part finder's candidate index of mask ``label``."""
+    return int(masks.candidates[label - 1]) if masks.candidates is not None else label - 1
+
+
+@stage(name="joint_states", version=9, config=JointStateConfig, output=JointSet)
 def refine_states(
     joints: JointSet,
     dynamic: CaptureArtifact,
@@ -76,10 +98,11 @@ def refine_states(
     """Each rotational joint's ``q(t)`` refitted against its part's depth, and a door's line fitted
     to its face planes (``config.refine_line``).
 
-    ``joint_<k>`` moves the part labelled ``k + 1`` in the masks (as ``track_parts`` and
-    ``fit_joints`` number them). ``selection`` gains ``state_frames_changed`` per joint: how many
-    frames' ``q`` the depth fit replaced. With ``config.rgb_time_offset_s`` (the effect
-    ``time_offset``) every joint's states are then moved to its frames' RGB times
+    ``joints`` and ``masks`` are the settled ones (``settle_parts``, ``final_masks``): joint ``k``
+    moves the part labelled ``k + 1``. ``selection`` gains ``state_frames_changed`` per joint: how
+    many frames' ``q`` the depth fit replaced. A joint whose refinement fails keeps its tracks'
+    states, with a note; the others are refined all the same. With ``config.rgb_time_offset_s``
+    (the effect ``time_offset``) every joint's states are then moved to its frames' RGB times
     (``to_rgb_clock``).
     """
     capture = to_core(Capture, dynamic)
@@ -97,24 +120,29 @@ def refine_states(
         if config.rgb_time_offset_s != 0.0
         else {}
     )
+    settled = {"mask_labels": joints.mask_labels, "label_map": joints.label_map, "fates": joints.fates}
     if not config.refine_from_depth:
         out = [to_artifact(JointParams, finish(to_core(Joint, p)), name=p.name) for p in joints.joints]
-        return JointSet(joints=out, selection=joints.selection, **clock)
+        return JointSet(joints=out, selection=joints.selection, **settled, **clock)
     seq = to_core(MaskSequence, masks)
     labels = {int(v) for v in np.unique(seq.part) if v > 0}
-    out, selection = [], {name: dict(scores) for name, scores in joints.selection.items()}
-    for params in joints.joints:
+    out, notes = [], []
+    selection = {name: dict(scores) for name, scores in joints.selection.items()}
+    for k, params in enumerate(joints.joints):
         joint = to_core(Joint, params)
-        label = int(params.name.rsplit("_", 1)[-1]) + 1
-        if label in labels:
-            refined = refine_joint_states(
-                joint, capture, seq, label, registration.canonical_from_session,
-                StateRefineConfig(max_points=config.max_points, refine_axis=config.refine_line),
-            )  # fmt: skip
-            changed = int(np.count_nonzero(np.abs(np.asarray(refined.q) - np.asarray(joint.q)) > 1e-9))
-            joint = refined
-        else:
-            changed = 0
+        changed = 0
+        if k + 1 in labels:
+            try:
+                refined = refine_joint_states(
+                    joint, capture, seq, k + 1, registration.canonical_from_session,
+                    StateRefineConfig(max_points=config.max_points, refine_axis=config.refine_line),
+                )  # fmt: skip
+            except Exception as e:  # noqa: BLE001 (this joint keeps its tracks' states; the others go on)
+                notes.append(f"{params.name}: the states could not be refined from depth ({type(e).__name__}: {e}); "
+                             "they are the tracks' states.")
+            else:
+                changed = int(np.count_nonzero(np.abs(np.asarray(refined.q) - np.asarray(joint.q)) > 1e-9))
+                joint = refined
         out.append(to_artifact(JointParams, finish(joint), name=params.name))
         selection.setdefault(params.name, {})["state_frames_changed"] = float(changed)
-    return JointSet(joints=out, selection=selection, **clock)
+    return JointSet(joints=out, selection=selection, notes=notes, **settled, **clock)

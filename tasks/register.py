@@ -22,6 +22,7 @@ from schemas import (
     CameraPoses,
     CaptureArtifact,
     MaskSequenceArtifact,
+    PartFateArtifact,
     PartMasksConfig,
     RegisterConfig,
     Registration,
@@ -48,7 +49,7 @@ def register_dynamic(static: CaptureArtifact, dynamic: CaptureArtifact, config: 
     )
 
 
-@stage(name="part_masks", version=9, config=PartMasksConfig, output=MaskSequenceArtifact)
+@stage(name="part_masks", version=10, config=PartMasksConfig, output=MaskSequenceArtifact)
 def label_parts(
     static: CaptureArtifact,
     static_poses: CameraPoses,
@@ -56,8 +57,10 @@ def label_parts(
     registration: Registration,
     config: PartMasksConfig,
 ) -> MaskSequenceArtifact:
-    """Part and hand masks of every dynamic frame against the canonical (static) geometry; with
-    ``config.sam2_checkpoint``, the part labels propagated backwards from the last frame by SAM2."""
+    """Candidate part masks and hand masks of every dynamic frame against the canonical (static)
+    geometry (``candidates``: which of the part finder's candidates each label is; ``fates``: those
+    it merged or dropped, and why); with ``config.sam2_checkpoint``, the part labels propagated
+    backwards from the last frame by SAM2."""
     if config.sam2_checkpoint and not Path(config.sam2_checkpoint).is_file():
         # Before the geometric work, not after it.
         raise InputError(
@@ -80,10 +83,12 @@ def label_parts(
         )
         part[np.asarray(masks.hand, bool)] = 0
         masks = MaskSequence(part=part, hand=masks.hand, score=masks.score)
-    return to_artifact(MaskSequenceArtifact, masks)
+    return to_artifact(
+        MaskSequenceArtifact, masks, candidates=seg.candidates, fates=[to_artifact(PartFateArtifact, f) for f in seg.fates]
+    )
 
 
-@stage(name="part_masks_report", version=1, config=PartMasksConfig, output=StageReport)
+@stage(name="part_masks_report", version=2, config=PartMasksConfig, output=StageReport)
 def part_masks_report(
     dynamic: CaptureArtifact, masks: MaskSequenceArtifact, registration: Registration, config: PartMasksConfig
 ) -> StageReport:
@@ -120,6 +125,12 @@ def part_masks_report(
             f"Only {100 * registration.inlier_fraction:.0f}% of the dynamic points lie on the static surface after "
             "registration: the recordings may not show the same room, or the registration failed."
         )
+    for fate in masks.fates:
+        where = "dropped" if fate.into is None else f"merged into candidate {fate.into}"
+        notes.append(f"Candidate part {fate.candidate}: {where}: {fate.reason}.")
+    if k_count:
+        notes.append("These are candidate parts: each is kept, merged or dropped once its tracks and joint are known "
+                     "(settle_parts in the summary).")
     if config.sam2_checkpoint:
         notes.append(f"Part labels propagated by SAM2 ({config.sam2_checkpoint}).")
     images = []

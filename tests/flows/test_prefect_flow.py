@@ -68,11 +68,14 @@ def test_scene_flow_writes_summary_and_reruns_from_cache(tmp_path, tiny_scene):
     assert set(summary["stages"]) == {
         "ingest/static", "ingest/dynamic", "capture_check/static", "capture_check/dynamic", "refine_poses",
         "reconstruct", "reconstruct_report", "register", "part_masks", "part_masks_report", "frame_poses",
-        "correct_frame_poses", "track", "fit_joints",
+        "correct_frame_poses", "track", "fit_joints", "settle_parts", "final_masks",
         "joint_states", "articulate", "articulate_report", "predict_views", "diagnose", "predict_dynamic", "diagnose_dynamic",
         "export",
     }
     assert all(s["status"] == "computed" for s in summary["stages"].values())
+    assert summary["status"] == "ok" and [(p["candidate"], p["fate"], p["joint"]) for p in summary["parts"]] == [
+        (0, "kept", "joint_0")
+    ]
     # The tiny scene's recorded poses are exact: its frame pose corrections are fitted, not applied.
     frame_poses = summary["stages"]["frame_poses"]
     assert frame_poses["metrics"]["applied"] == 0 and frame_poses["metrics"]["fast_chi2_per_dof"] < 10

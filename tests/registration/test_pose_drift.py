@@ -215,7 +215,8 @@ def test_pipeline_routes_later_stages_through_the_drift_corrections(tmp_path):
     assert ex.calls["correct_frame_poses/dynamic"] == {
         "capture": "correct_pose_drift/dynamic", "corrections": "frame_poses/dynamic",
     }
-    for name in ("track/dynamic", "joint_states/dynamic", "predict_dynamic/dynamic", "articulate/scene", "export/scene"):
+    for name in ("track/dynamic", "settle_parts/dynamic", "joint_states/dynamic", "predict_dynamic/dynamic", "articulate/scene",
+                 "export/scene"):
         assert ex.calls[name]["dynamic"] == "correct_frame_poses/dynamic", name
     assert ex.calls["reconstruct/static"]["capture"] == "calibrate_depth/static"
     assert ex.calls["articulate/scene"]["static"] == "calibrate_depth/static"

@@ -5,7 +5,7 @@ from __future__ import annotations
 import numpy as np
 
 from artitwin_core.joints import joint_errors, random_part_joint, simulate_trajectories
-from schemas import JointParams, TrajectoriesArtifact
+from schemas import JointParams, MaskSequenceArtifact, TrajectoriesArtifact
 from tasks.joints import JointConfig, fit_joints
 
 
@@ -23,8 +23,15 @@ def test_two_parts_get_their_own_joints():
         valid=np.concatenate([t.valid for t in trajs], axis=1),
         part_ids=np.repeat(np.arange(2, dtype=np.int32), [t.valid.shape[1] for t in trajs]),
     )
-    out = fit_joints(art, JointConfig())
-    assert [j.name for j in out.joints] == ["joint_0", "joint_1"]
+    t = art.valid.shape[0]
+    labels = np.zeros((t, 2, 3), np.uint8)
+    labels[:, 0, 0], labels[:, 1, 1], labels[:, 1, 2] = 1, 2, 3  # label 3 has no tracks at all
+    masks = MaskSequenceArtifact(part=labels, hand=np.zeros(labels.shape, bool), score=np.ones(t, np.float32))
+    out = fit_joints(art, masks, JointConfig())
+    assert [j.name for j in out.joints] == ["joint_0", "joint_1"] and out.mask_labels == [1, 2]
+    # The candidate without tracks gets no joint and a fate saying why; the others are fitted.
+    assert [(f.candidate, f.label, f.fate, f.stage) for f in out.fates] == [(2, 3, "dropped", "fit_joints")]
+    assert "no point could be tracked" in out.fates[0].reason
     for est, truth in zip(out.joints, truths, strict=True):
         from artitwin_core.joints import Joint
         from tasks import to_core

@@ -1,0 +1,118 @@
+"""settle_parts: every candidate part is kept, merged into the part whose motion explains it, or
+dropped with the reason; relabel applies the decision (tiny scene, true joint and registration)."""
+
+from __future__ import annotations
+
+from dataclasses import replace
+
+import cv2
+import numpy as np
+import pytest
+
+from artitwin_core.masks import MaskSequence
+from artitwin_core.parts import PartFate, relabel, settle_parts
+from artitwin_core.synth import BENCHMARK_SCENES, generate_scene
+from artitwin_core.tracking._lift import lift_pixels
+
+
+@pytest.fixture(scope="module")
+def scene():
+    return generate_scene(BENCHMARK_SCENES["tiny"])
+
+
+@pytest.fixture(scope="module")
+def drawer():
+    return generate_scene(replace(BENCHMARK_SCENES["tiny"], furniture="drawer"))
+
+
+def _closed_x(scene, t: int) -> np.ndarray:
+    """``[H, W]`` canonical x (metres) of each true part pixel's surface point in the part's
+    closed state (NaN elsewhere)."""
+    truth, dyn = scene.truth, scene.dynamic
+    v, u = np.nonzero(truth.part_masks[t] == 1)
+    pose = truth.canonical_from_dynamic_session @ dyn.world_from_camera[t]
+    pts, ok = lift_pixels(np.stack([u, v], -1).astype(float), dyn.depth[t], dyn.confidence[t], dyn.rgb_intrinsics[t],
+                          dyn.depth_intrinsics[t], pose)
+    m = truth.part_world_from_closed[0, t]
+    closed = (pts - m[:3, 3]) @ m[:3, :3]
+    out = np.full(truth.part_masks[t].shape, np.nan)
+    out[v[ok], u[ok]] = closed[ok, 0]
+    return out
+
+
+def _candidates(scene):
+    """Label 1: the part less a strip along its left side; 2: the strip (its closed surface's 12 cm
+    nearest x = -w/2); 3: a ring of static surface around the part; 4: a 2 x 2 pixel speck on the
+    wall (too few depth points)."""
+    truth = scene.truth
+    edge = -scene.spec.size_m[0] / 2 + 0.12
+    part = np.zeros_like(truth.part_masks)
+    for t in range(part.shape[0]):
+        moving = truth.part_masks[t] == 1
+        part[t][moving] = 1
+        part[t][moving & (np.nan_to_num(_closed_x(scene, t), nan=1.0) < edge)] = 2
+        ring = cv2.dilate(moving.astype(np.uint8), np.ones((7, 7), np.uint8)).astype(bool) & ~moving & ~truth.hand_masks[t]
+        part[t][ring] = 3
+        part[t][2:4, 2:4] = 4
+    return MaskSequence(part=part, hand=truth.hand_masks, score=np.ones(part.shape[0], np.float32))
+
+
+def test_every_candidate_is_kept_merged_or_dropped_with_its_reason(drawer):
+    scene = drawer
+    masks = _candidates(scene)
+    truth = scene.truth
+    assert all((masks.part == k).any() for k in (1, 2, 3, 4))
+    earlier = [PartFate(candidate=1, fate="dropped", stage="fit_joints", reason="no point could be tracked on it", label=2),
+               PartFate(candidate=7, fate="dropped", stage="part_masks", reason="unsupported")]
+    decision = settle_parts(scene.dynamic, masks, truth.canonical_from_dynamic_session, {1: truth.joints[0]},
+                            tracks={1: 200, 2: 0}, earlier=earlier)
+    fates = {f.candidate: f for f in decision.fates}
+    assert sorted(fates) == [0, 1, 2, 3, 7]
+    assert fates[0].fate == "kept" and fates[0].part == 0
+    # The strip, untrackable, moves with the drawer: merged into it.
+    assert (fates[1].fate, fates[1].into, fates[1].part) == ("merged", 0, 0), fates[1]
+    assert "no point could be tracked" in fates[1].reason and "explains its depth" in fates[1].reason
+    # The ring of static surface does not move with the drawer; the speck has too little depth to
+    # build anything.
+    assert fates[2].fate == "dropped" and "no kept part's motion explains" in fates[2].reason, fates[2]
+    assert fates[3].fate == "dropped" and "too few depth points" in fates[3].reason, fates[3]
+    assert fates[7] == replace(earlier[1], part=None)  # the part finder's own fates are kept
+    assert decision.kept_labels == (1,)
+    np.testing.assert_array_equal(decision.label_map, [0, 1, 1, 0, 0])
+    final = relabel(masks.part, decision.label_map)
+    np.testing.assert_array_equal(final == 1, (masks.part == 1) | (masks.part == 2))
+    assert set(np.unique(final)) == {0, 1}
+
+
+def test_same_joint_merges_and_no_motion_drops(scene):
+    masks = _candidates(scene)
+    truth = scene.truth
+    door = truth.joints[0]
+    still = replace(door, joint_type="fixed", q=np.zeros_like(door.q))
+    decision = settle_parts(scene.dynamic, masks, truth.canonical_from_dynamic_session,
+                            {1: door, 2: replace(door, axis=-door.axis, q=-door.q), 3: still}, tracks={1: 50, 2: 300, 3: 80})
+    fates = {f.candidate: f for f in decision.fates}
+    # Two candidates with one joint are one part; the one with more tracks absorbs the other.
+    assert decision.kept_labels == (2,)
+    assert fates[1].fate == "kept" and (fates[0].fate, fates[0].into, fates[0].part) == ("merged", 1, 0)
+    assert "same joint" in fates[0].reason
+    assert fates[2].fate == "dropped" and "no motion of its own" in fates[2].reason
+    np.testing.assert_array_equal(decision.label_map, [0, 1, 1, 0, 0])
+
+
+def test_nothing_labelled_settles_to_no_part(scene):
+    empty = MaskSequence(part=np.zeros_like(scene.truth.part_masks), hand=scene.truth.hand_masks,
+                         score=np.ones(scene.truth.part_masks.shape[0], np.float32))
+    decision = settle_parts(scene.dynamic, empty, np.eye(4), {})
+    assert decision.fates == () and decision.kept_labels == () and decision.label_map.tolist() == [0]
+
+
+def test_the_stage_config_is_the_core_config():
+    """One truth per setting: every field of the stage config is the core config's, with its default."""
+    from dataclasses import fields
+
+    from artitwin_core.parts import SettleConfig
+    from schemas import SettlePartsConfig
+
+    core = {f.name: f.default for f in fields(SettleConfig)}
+    assert {name: info.default for name, info in SettlePartsConfig.model_fields.items()} == core
