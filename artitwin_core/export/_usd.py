@@ -62,7 +62,16 @@ from pxr import Gf, Sdf, Usd, UsdGeom, UsdPhysics, UsdVol, Vt
 
 from artitwin_core._errors import InputError
 from artitwin_core.export._inertia import WOOD_DENSITY_KG_M3
-from artitwin_core.export._model import Z_UP_FROM_Y_UP, Link, Model, ModelJoint, build_model, mean_rgba
+from artitwin_core.export._model import (
+    Z_UP_FROM_Y_UP,
+    ExportPart,
+    Link,
+    Model,
+    ModelJoint,
+    _as_part,
+    build_model,
+    mean_rgba,
+)
 from artitwin_core.gaussians import LABEL_PART, GaussianParams
 from artitwin_core.geometry import matrix_to_quat_wxyz
 
@@ -122,6 +131,8 @@ def _gf_matrix(transform: np.ndarray) -> Gf.Matrix4d:
 
 
 def _clean_visual(mesh: trimesh.Trimesh, link: str, notes: list[str]) -> trimesh.Trimesh:
+    if len(mesh.faces) == 0:
+        return mesh  # build_model says what an empty mesh means
     verts = np.asarray(mesh.vertices, np.float64)
     faces = np.asarray(mesh.faces, np.int64)
     ok = np.isfinite(verts).all(axis=1)[faces].all(axis=1)
@@ -140,20 +151,21 @@ def _clean_visual(mesh: trimesh.Trimesh, link: str, notes: list[str]) -> trimesh
     return out
 
 
-def _clean_collision(link: Link, visual: trimesh.Trimesh | None, notes: list[str]) -> list[trimesh.Trimesh]:
-    pieces = []
-    for piece in link.collision:
+def _clean_collision(pieces: list[trimesh.Trimesh], visual: trimesh.Trimesh, link: str,
+                     notes: list[str]) -> list[trimesh.Trimesh]:
+    kept = []
+    for piece in pieces:
         v = np.asarray(piece.vertices, np.float64)
         if len(piece.faces) >= 4 and np.isfinite(v).all() and abs(piece.convex_hull.volume) > _MIN_PIECE_VOLUME_M3:
-            pieces.append(piece)
-    dropped = len(link.collision) - len(pieces)
-    if dropped:
-        notes.append(f"{link.name}: {dropped} collision piece(s) with no volume or non-finite points were left out.")
-    if pieces or visual is None:
-        return pieces
+            kept.append(piece)
+    if len(kept) < len(pieces):
+        notes.append(f"{link}: {len(pieces) - len(kept)} collision piece(s) with no volume or non-finite points "
+                     "were left out.")
+    if kept:
+        return kept
     obb = visual.bounding_box_oriented
     extents = np.maximum(np.asarray(obb.primitive.extents, np.float64), _MIN_THICKNESS_M)
-    notes.append(f"{link.name}: no usable collision piece; it collides as its visual mesh's bounding box "
+    notes.append(f"{link}: no usable collision piece; it collides as its visual mesh's bounding box "
                  f"({np.round(extents, 3).tolist()} m).")
     return [trimesh.creation.box(extents=extents, transform=np.asarray(obb.primitive.transform))]
 
@@ -367,7 +379,17 @@ def export_usd(
     """
     up_axis = up_axis_of(sim_from_canonical)
     world_from_canonical = np.eye(4) if sim_from_canonical is None else np.asarray(sim_from_canonical, np.float64)
-    model = build_model(base_mesh, parts, name=name, base_collision=base_collision,
+    notes: list[str] = []
+    # Cleaned before the model is built, so the inertials come from the same surfaces.
+    base_mesh = _clean_visual(base_mesh, "base", notes)
+    if base_collision is not None:
+        base_collision = _clean_collision(base_collision, base_mesh, "base", notes)
+    clean = []
+    for part in (_as_part(p) for p in parts):
+        mesh = _clean_visual(part.mesh, str(part.name), notes)
+        pieces = None if part.collision is None else _clean_collision(part.collision, mesh, str(part.name), notes)
+        clean.append(ExportPart(part.name, part.joint, mesh, pieces))
+    model = build_model(base_mesh, clean, name=name, base_collision=base_collision,
                         density_kg_m3=density_kg_m3, sim_from_canonical=None)
     part_links = [lk.name for lk in model.links[1:] if lk.visual is not None]
     if len(part_links) != len(parts):  # every part link has a mesh; helpers have none
@@ -392,15 +414,13 @@ def export_usd(
         f"is in ArtiTwin's canonical frame (y up); {root}'s transform maps it into the stage. Link frames sit at "
         "their joint pivots with canonical axes; joints move along their frame's X axis. Splats are "
         "UsdVol ParticleField3DGaussianSplat prims in their link's frame.")
-    notes: list[str] = []
     result_payloads: dict[str, Path] = {}
     pitch_of = {j.name: (j.mimic[0], j.mimic[1]) for j in model.joints if j.mimic is not None}
     base_name = model.links[0].name
     for link in model.links:
         lpath = f"{root}/{link.name}"
-        visual = _clean_visual(link.visual, link.name, notes) if link.visual is not None else None
-        pieces = _clean_collision(link, visual, notes)
-        _author_link_body(stage, lpath, link, origins[link.name], pieces, is_root=link.name == base_name)
+        visual = link.visual
+        _author_link_body(stage, lpath, link, origins[link.name], link.collision, is_root=link.name == base_name)
         g = splats.get(link.name)
         if visual is None and g is None:
             continue

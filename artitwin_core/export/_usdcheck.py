@@ -5,7 +5,7 @@
 - ``usd``: OpenUSD itself. The stage is opened with ``pxr``, run through every registered
   ``UsdValidation`` validator (USD's own validation; ``UsdUtils.ComplianceChecker`` is gone from
   recent releases), checked for its ``metersPerUnit`` / ``upAxis``, and parsed by
-  ``UsdPhysics.LoadUsdPhysicsFromRange`` (the parser physics engines share) for one fixed-base
+  ``UsdPhysics``' own parser (the one physics engines share) for one fixed-base
   articulation that holds every joint. Every joint is then read back (type, bodies, local frames,
   axis, limits) and the part links are placed by forward kinematics through those joints,
   ``world_from_child = world_from_parent @ L0 @ J(q) @ inv(L1)`` (PhysX's convention, see
@@ -121,9 +121,12 @@ def _joint_motion(joint: UsdJoint, q: float) -> np.ndarray:
     return out
 
 
-def usd_link_poses(joints: list[UsdJoint], states: dict[str, float]) -> dict[str, np.ndarray]:
-    """``{link: [4, 4] world_from_link}`` by forward kinematics from the world through ``joints``."""
-    poses: dict[str, np.ndarray] = {}
+def usd_link_poses(joints: list[UsdJoint], states: dict[str, float],
+                   roots: dict[str, np.ndarray] | None = None) -> dict[str, np.ndarray]:
+    """``{link: [4, 4] world_from_link}`` by forward kinematics through ``joints`` from the world,
+    or from ``roots`` (``{link: world_from_link}``, e.g. the authored poses) for links no joint moves."""
+    children = {j.child for j in joints}
+    poses = {name: pose for name, pose in (roots or {}).items() if name not in children}
     pending = list(joints)
     while pending:
         ready = [j for j in pending if j.parent is None or j.parent in poses]
@@ -135,6 +138,28 @@ def usd_link_poses(joints: list[UsdJoint], states: dict[str, float]) -> dict[str
                 j.child_from_joint)
             pending.remove(j)
     return poses
+
+
+def authored_poses(stage) -> dict[str, np.ndarray]:
+    """``{name: [4, 4] world_from_prim}`` of the default prim's children, as their xforms place them."""
+    from pxr import UsdGeom
+
+    cache = UsdGeom.XformCache()
+    root = stage.GetDefaultPrim()
+    if not root:
+        return {}
+    # Gf matrices act on row vectors: transpose to our column-vector convention.
+    return {c.GetName(): np.asarray(cache.GetLocalToWorldTransform(c), np.float64).T
+            for c in root.GetChildren() if c.IsA(UsdGeom.Xformable)}
+
+
+def parse_physics(stage) -> dict:
+    """``{UsdPhysics.ObjectType: (paths, descriptions)}``: the stage as UsdPhysics' shared parser reads it."""
+    from pxr import UsdPhysics
+
+    # Renamed in OpenUSD 26.5; the old name still works there, with a DeprecationWarning.
+    load = getattr(UsdPhysics, "UsdPhysicsLoadStageFromPrimRange", None) or UsdPhysics.LoadUsdPhysicsFromRange
+    return load(stage, ["/"])
 
 
 def validate_usd(stage) -> list[str]:
@@ -151,7 +176,7 @@ def validate_usd(stage) -> list[str]:
         problems.append("the stage does not state metersPerUnit = 1")
     if not stage.HasAuthoredMetadata("upAxis"):
         problems.append("the stage does not state its upAxis")
-    parsed = UsdPhysics.LoadUsdPhysicsFromRange(stage, ["/"])
+    parsed = parse_physics(stage)
     arts = parsed.get(UsdPhysics.ObjectType.Articulation, ([], []))[1]
     joint_paths = {str(p) for kind, (paths, _) in parsed.items() if "Joint" in str(kind) for p in paths}
     if len(arts) != 1:
@@ -163,17 +188,13 @@ def validate_usd(stage) -> list[str]:
         missing = joint_paths - {str(p) for p in art.articulatedJoints}
         if missing:
             problems.append(f"joints outside the articulation: {sorted(missing)}")
-    joints = read_usd_joints(stage)
-    rest = usd_link_poses(joints, {})
-    cache = UsdGeom.XformCache()
-    root = stage.GetDefaultPrim()
+    authored = authored_poses(stage)
+    rest = usd_link_poses(read_usd_joints(stage), {}, authored)
     for name, pose in rest.items():
-        prim = root.GetChild(name) if root else None
-        if prim is None or not prim.IsValid():
+        if name not in authored:
             problems.append(f"joint body {name!r} is not a child of the default prim")
             continue
-        authored = np.asarray(cache.GetLocalToWorldTransform(prim), np.float64).T  # Gf: row vectors
-        err = np.abs(authored - pose).max()
+        err = np.abs(authored[name] - pose).max()
         if err > 1e-5:  # float32 joint frames against double xforms: ~1e-7 in practice
             problems.append(f"{name}: authored pose is {err:.2g} off its joints' pose at q = 0")
     return problems
@@ -207,8 +228,10 @@ def _usd(path: Path, parts: list[SimPart], problems: list[str]) -> Iterator[Pose
     if not any(j.name == ROOT_JOINT and j.parent is None for j in joints):
         problems.append(f"no {ROOT_JOINT} from the world to the base")
 
+    authored = authored_poses(stage)
+
     def pose(link: str, states: dict[str, float]) -> np.ndarray:
-        return usd_link_poses(joints, states)[link]
+        return usd_link_poses(joints, states, authored)[link]
 
     yield pose
 
