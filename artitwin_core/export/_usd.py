@@ -90,7 +90,8 @@ class UsdResult:
         path: the stage, ``<out_dir>/<name>.usda``.
         payloads: ``{link: path}`` of the binary payload layers written (empty if none was needed).
         splat_counts: ``{link: number of Gaussians}`` placed under each link.
-        notes: fallbacks taken (dropped faces or collision pieces, bounding-box colliders).
+        notes: fallbacks taken (dropped faces or collision pieces, bounding-box colliders); a screw's
+            coupling is stated on its slide joint prim instead.
     """
 
     path: Path
@@ -357,7 +358,7 @@ def export_usd(
     effort: float = 50.0,
     damping: float = 0.5,
     sim_from_canonical: np.ndarray | None = Z_UP_FROM_Y_UP,
-    payload_min_bytes: int | None = 1 << 20,
+    payload_min_bytes: int | None = 1 << 18,
 ) -> UsdResult:
     """Write ``<out_dir>/<name>.usda`` (and ``payloads/*.usdc`` for heavy links); see the module docstring.
 
@@ -456,7 +457,5 @@ def export_usd(
     scene = UsdPhysics.Scene.Define(stage, "/physicsScene")
     scene.CreateGravityDirectionAttr(Gf.Vec3f(0.0, 0.0, -1.0) if up_axis == "Z" else Gf.Vec3f(0.0, -1.0, 0.0))
     scene.CreateGravityMagnitudeAttr(GRAVITY_M_S2)
-    for note in model.notes:
-        notes.append(note)
     stage.GetRootLayer().Save()
     return UsdResult(path, result_payloads, {k: v.num_gaussians for k, v in splats.items()}, notes)
