@@ -76,6 +76,7 @@ from artitwin_core.gaussians import LABEL_PART, GaussianParams
 from artitwin_core.geometry import matrix_to_quat_wxyz
 
 PAYLOAD_DIR = "payloads"
+JOINTS_SCOPE = "joints"  # a sibling of the links: build_model keeps it out of the link names
 ROOT_JOINT = "root_joint"
 GRAVITY_M_S2 = 9.81
 _MIN_THICKNESS_M = 0.01
@@ -294,9 +295,8 @@ def _author_link_body(stage: Usd.Stage, path: str, link: Link, origin: np.ndarra
         UsdPhysics.MeshCollisionAPI.Apply(mesh.GetPrim()).CreateApproximationAttr(UsdPhysics.Tokens.convexHull)
 
 
-def _author_joint(stage: Usd.Stage, root: str, j: ModelJoint, *, effort: float, damping: float,
-                  pitch_of: dict[str, tuple[str, float]]) -> None:
-    path = f"{root}/joints/{j.name}"
+def _author_joint(stage: Usd.Stage, root: str, j: ModelJoint, *, effort: float, damping: float) -> None:
+    path = f"{root}/{JOINTS_SCOPE}/{j.name}"
     frame = joint_frame_rotation(j.axis)
     if j.kind == "revolute":
         joint = UsdPhysics.RevoluteJoint.Define(stage, path)
@@ -325,11 +325,11 @@ def _author_joint(stage: Usd.Stage, root: str, j: ModelJoint, *, effort: float, 
     joint.CreateLocalPos1Attr(Gf.Vec3f(0.0, 0.0, 0.0))
     joint.CreateLocalRot1Attr(_gf_quatf(frame))
     if j.mimic is not None:
-        lead, gearing = j.mimic[0], pitch_of[j.name][1]
+        lead, gearing = j.mimic  # this joint = gearing * lead (metres per radian)
         prim = joint.GetPrim()
         prim.AddAppliedSchema("PhysxMimicJointAPI:transX")  # PhysX schema, not in usd-core: authored by name
         prim.CreateRelationship("physxMimicJoint:transX:referenceJoint", custom=False).SetTargets(
-            [Sdf.Path(f"{root}/joints/{lead}")])
+            [Sdf.Path(f"{root}/{JOINTS_SCOPE}/{lead}")])
         prim.CreateAttribute("physxMimicJoint:transX:referenceJointAxis", Sdf.ValueTypeNames.Token,
                              custom=False).Set("rotX")
         prim.CreateAttribute("physxMimicJoint:transX:gearing", Sdf.ValueTypeNames.Float, custom=False).Set(-gearing)
@@ -338,7 +338,7 @@ def _author_joint(stage: Usd.Stage, root: str, j: ModelJoint, *, effort: float, 
 
 
 def _author_root_joint(stage: Usd.Stage, root: str, base: str, world_from_base: np.ndarray) -> None:
-    joint = UsdPhysics.FixedJoint.Define(stage, f"{root}/joints/{ROOT_JOINT}")
+    joint = UsdPhysics.FixedJoint.Define(stage, f"{root}/{JOINTS_SCOPE}/{ROOT_JOINT}")
     joint.CreateBody1Rel().SetTargets([Sdf.Path(f"{root}/{base}")])  # body0 unset: the world
     joint.CreateLocalPos0Attr(Gf.Vec3f(*map(float, world_from_base[:3, 3])))
     joint.CreateLocalRot0Attr(_gf_quatf(world_from_base[:3, :3]))
@@ -416,7 +416,6 @@ def export_usd(
         "their joint pivots with canonical axes; joints move along their frame's X axis. Splats are "
         "UsdVol ParticleField3DGaussianSplat prims in their link's frame.")
     result_payloads: dict[str, Path] = {}
-    pitch_of = {j.name: (j.mimic[0], j.mimic[1]) for j in model.joints if j.mimic is not None}
     base_name = model.links[0].name
     for link in model.links:
         lpath = f"{root}/{link.name}"
@@ -450,10 +449,10 @@ def export_usd(
                 _author_visual(stage, f"{lpath}/visual", visual)
             if g is not None:
                 _author_splats(stage, f"{lpath}/splats", g, offset)
-    UsdGeom.Scope.Define(stage, f"{root}/joints")
+    UsdGeom.Scope.Define(stage, f"{root}/{JOINTS_SCOPE}")
     _author_root_joint(stage, root, base_name, world_from_canonical @ origins[base_name])
     for j in model.joints:
-        _author_joint(stage, root, j, effort=effort, damping=damping, pitch_of=pitch_of)
+        _author_joint(stage, root, j, effort=effort, damping=damping)
     scene = UsdPhysics.Scene.Define(stage, "/physicsScene")
     scene.CreateGravityDirectionAttr(Gf.Vec3f(0.0, 0.0, -1.0) if up_axis == "Z" else Gf.Vec3f(0.0, -1.0, 0.0))
     scene.CreateGravityMagnitudeAttr(GRAVITY_M_S2)

@@ -251,3 +251,11 @@ def test_degenerate_meshes_are_refused_or_cleaned(tmp_path):
 def test_gaussians_of_an_unknown_part_are_an_input_error(tmp_path):
     with pytest.raises(InputError, match="labelled for part 2"):
         _export(tmp_path, ["door", "drawer"], gaussians=_gaussians(["a", "b", "c"], seed=1))
+
+
+def test_a_part_called_joints_does_not_collide_with_the_joints_scope(tmp_path):
+    joint, mesh = ALL["door"]
+    result = export_usd(tmp_path, BASE, [("joints", joint, mesh, [mesh])], base_collision=[BASE])
+    part = SimPart("joints_2", replace(joint, q=np.linspace(*joint.q_range, 5)), np.asarray(mesh.vertices) - joint.pivot)
+    (usd,) = check_usd(result.path, [part], simulators=("usd",))
+    assert usd.status == "ok" and usd.max_error_m < TOL_M, usd
