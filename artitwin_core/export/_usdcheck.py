@@ -157,7 +157,7 @@ def parse_physics(stage) -> dict:
     """``{UsdPhysics.ObjectType: (paths, descriptions)}``: the stage as UsdPhysics' shared parser reads it."""
     from pxr import UsdPhysics
 
-    # Renamed in OpenUSD 26.5; the old name still works there, with a DeprecationWarning.
+    # Renamed after OpenUSD 26.3 (the oldest release this project takes); the old name still works, deprecated.
     load = getattr(UsdPhysics, "UsdPhysicsLoadStageFromPrimRange", None) or UsdPhysics.LoadUsdPhysicsFromRange
     return load(stage, ["/"])
 
