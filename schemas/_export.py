@@ -146,9 +146,13 @@ class ExportConfig(StageConfig):
     max_collision_pieces: int = Field(default=16, ge=1, description="At most this many convex pieces per part.")
     base_max_collision_pieces: int = Field(default=32, ge=1, description="At most this many convex pieces for the base.")
     density_kg_m3: float = Field(default=500.0, gt=0, description="Uniform density of the parts (500: wood), kg/m^3.")
-    effort: float = Field(default=50.0, gt=0, description="URDF joint effort limit, N m (revolute) or N (prismatic).")
+    effort: float = Field(
+        default=50.0, gt=0, description="Joint effort limit (URDF limit, USD drive maxForce), N m (revolute) or N (prismatic)."
+    )
     velocity: float = Field(default=1.0, gt=0, description="URDF joint velocity limit, rad/s or m/s.")
-    damping: float = Field(default=0.5, ge=0, description="MJCF joint damping, N m s/rad or N s/m.")
+    damping: float = Field(
+        default=0.5, ge=0, description="Joint damping (MJCF joint, USD passive drive), N m s/rad or N s/m."
+    )
     formats: list[Literal["urdf", "mjcf", "usd", "splats"]] = Field(
         default_factory=lambda: ["urdf", "mjcf", "usd", "splats"],
         description="What to write: 'urdf' (twin.urdf), 'mjcf' (twin.xml), 'usd' (twin.usda: OpenUSD stage with a "
