@@ -9,7 +9,7 @@ fetched from the network.
 from __future__ import annotations
 
 import json
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from pathlib import Path
 
 import numpy as np
@@ -20,7 +20,9 @@ from artitwin_core.viewer import (
     CameraRig,
     TwinData,
     heat_colors,
+    list_export_files,
     matrix_to_quat_wxyz,
+    model_files,
     part_poses,
     read_collision_meshes,
     slider_range,
@@ -160,7 +162,19 @@ def build_viewer(twin: TwinData, host: str = "127.0.0.1", port: int = 8080) -> T
                     points.visible = on
 
         viewer.toggles["residual"] = residual
+    if twin.exports:
+        with server.gui.add_folder("Exports"):
+            lines = [f"- `{short_export_path(p)}`" for p in twin.exports]
+            if any(p.endswith(".usda") for p in twin.exports):
+                lines.append("\nIsaac Sim: *File > Open* the `.usda` (see docs/usd.md).")
+            server.gui.add_markdown("\n".join(lines))
     return viewer
+
+
+def short_export_path(path: str) -> str:
+    """``twin.usda`` or ``payloads/base.usdc``: an exported file as it sits in its export folder."""
+    p = Path(path)
+    return f"{p.parent.name}/{p.name}" if p.parent.name == "payloads" else p.name
 
 
 def _toggle(server, label: str, handles: list, initial: bool):
@@ -223,8 +237,7 @@ def load_twin(
     twin = _twin_from_summary(summary, export_dir)
     if residual is not None:
         per_gaussian, points, values = read_residual(residual)
-        twin = TwinData(twin.gaussians, twin.joints, twin.joint_names, twin.cameras, per_gaussian, points, values,
-                        twin.collision, twin.title)
+        twin = replace(twin, residual=per_gaussian, residual_points=points, residual_values=values)
     return twin
 
 
@@ -287,6 +300,9 @@ def _twin_from_summary(summary_path: Path, export_dir: str | Path | None) -> Twi
         found = sorted(summary_path.parent.glob("*/meshes")) + sorted(summary_path.parent.glob("*/*/meshes"))
         export_dir = found[0].parent if found else None
     collision = read_collision_meshes(export_dir, names, joints) if export_dir is not None else []
+    # summary.json lists what the run exported; an explicit export folder is listed as it is.
+    exports = (list_export_files(export_dir) if export_dir is not None else ()) or model_files(
+        summary.get("exports", {}).values())
     per_gaussian = None
     if points is not None and len(points):
         # The residual accumulated onto the model: which Gaussians (and so which part) are wrong.
@@ -295,7 +311,7 @@ def _twin_from_summary(summary_path: Path, export_dir: str | Path | None) -> Twi
         per_gaussian = residual_on_gaussians(params.means, points, values)
     return TwinData(params, tuple(joints), tuple(names), cameras, residual=per_gaussian, residual_points=points,
                     residual_values=values, collision=tuple(collision),
-                    title=Path(summary.get("scene", summary_path.parent)).name)
+                    title=Path(summary.get("scene", summary_path.parent)).name, exports=exports)
 
 
 def _depth_residual(store, key: str, cap, poses) -> tuple[np.ndarray | None, np.ndarray | None]:
@@ -356,6 +372,11 @@ def view(
         by = residual_by_label(twin.residual, twin.gaussians.labels, names)
         echo("residual per part (mean over its observed Gaussians; a run's depth residual is in metres): "
              + ", ".join(f"{n} {v:.3g}" for n, v in by.items() if np.isfinite(v)))
+    if twin.exports:
+        usd = [p for p in twin.exports if p.endswith(".usda")]
+        folder = Path(twin.exports[0]).parent  # model_files puts the stages (not payloads) first
+        echo(f"exports in {folder}: " + ", ".join(short_export_path(p) for p in twin.exports)
+             + (f"; open {usd[0]} in Isaac Sim (File > Open)" if usd else ""))
     echo(f"viewer at {viewer.url} (Ctrl-C stops it)")
     if not block:
         return viewer

@@ -77,8 +77,9 @@ def _print_summary(summary: dict[str, Any], out: Path | None) -> None:
         console.print(f"joint {j['name']}: {j['type']}, axis {[round(v, 3) for v in j['axis']]}, "
                       f"pivot {[round(v, 3) for v in j['pivot']]} m, range {[round(v, 3) for v in j['range']]}")
     if summary.get("exports"):
-        urdf = summary["exports"].get("export/twin.urdf")
-        console.print(f"exports: {len(summary['exports'])} files under {out}" + (f" (URDF: {urdf})" if urdf else ""))
+        found = [(kind, summary["exports"].get(f"export/twin.{ext}")) for kind, ext in (("URDF", "urdf"), ("USD", "usda"))]
+        named = ", ".join(f"{kind}: {path}" for kind, path in found if path)
+        console.print(f"exports: {len(summary['exports'])} files under {out}" + (f" ({named})" if named else ""))
     if out is not None:
         console.print(f"summary: {out / 'summary.json'}")
 

@@ -5,8 +5,9 @@ registration: this measures fusion and export alone), faces, Chamfer against the
 true surface moved back to q = 0 (accuracy fused -> true, completeness true -> fused, their mean;
 mm), CoACD and k-means convex decomposition (pieces, seconds), the inertial (kg, which volume),
 then the URDF and MJCF written and loaded in yourdfpy, PyBullet and MuJoCo with the part driven
-through the true q(t): the max mesh-vertex error against ``joint_transforms`` (m). Seconds are the
-median of ``--repeats`` runs.
+through the true q(t): the max mesh-vertex error against ``joint_transforms`` (m); then the USD
+stage written (seconds, bytes of twin.usda plus payloads) and checked by ``check_usd`` (pxr
+read-back, and Newton where installed; same error, m). Seconds are the median of ``--repeats`` runs.
 
 Run: ``python bench/bench_export.py [--scenes door drawer ...] [--voxels 0.01 0.005] [--repeats 3]``;
 prints a table and writes ``bench/results/export.json``.
@@ -29,9 +30,12 @@ from _common import print_table, write_results  # noqa: E402
 
 from artitwin_core.export import (  # noqa: E402
     Z_UP_FROM_Y_UP,
+    SimPart,
+    check_usd,
     convex_decomposition,
     export_mjcf,
     export_urdf,
+    export_usd,
     fuse_base_mesh,
     fuse_part_mesh,
     mesh_inertial,
@@ -164,6 +168,13 @@ def main() -> None:
                         mjcf = export_mjcf(tmp, base, parts, base_collision=base_col)
                         t_export = time.perf_counter() - t0
                         errs = _sim_errors(urdf, mjcf, "part", joint, mesh)
+                        t0 = time.perf_counter()
+                        usd = export_usd(tmp, base, parts, base_collision=base_col)
+                        errs["usd_s"] = time.perf_counter() - t0
+                        errs["usd_bytes"] = usd.path.stat().st_size + sum(p.stat().st_size for p in usd.payloads.values())
+                        sim_part = SimPart("part", joint, np.asarray(mesh.vertices) - joint.pivot)
+                        for r in check_usd(usd.path, [sim_part]):
+                            errs[f"err_{r.simulator}_m"] = r.max_error_m if r.status in ("ok", "mismatch") else None
                     row.update({"coacd_pieces": len(pieces), "coacd_s": t_coacd, "kmeans_pieces": len(km),
                                 "kmeans_s": t_km, "mass_kg": inertial.mass_kg, "mass_from": inertial.source,
                                 "base_faces": len(base.faces), "base_fuse_s": t_base, "export_s": t_export, **errs})
@@ -171,7 +182,7 @@ def main() -> None:
                 print(row, flush=True)
     print_table(rows, ["scene", "part", "type", "voxel_mm", "faces", "fuse_s", "acc_mm", "comp_mm", "chamfer_mm",
                        "coacd_pieces", "coacd_s", "kmeans_s", "mass_kg", "mass_from", "err_pybullet_m",
-                       "err_mujoco_m", "err_yourdfpy_m"])
+                       "err_mujoco_m", "err_yourdfpy_m", "usd_s", "usd_bytes", "err_usd_m", "err_newton_usd_m"])
     path = write_results("export", rows, {"repeats": args.repeats})
     print(f"wrote {path}")
 

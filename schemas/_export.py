@@ -63,19 +63,20 @@ class ExportFile(Artifact):
 
 
 class ExportBundle(Artifact):
-    """The exported articulated twin: URDF, MJCF, meshes, per-part splats and the simulator check."""
+    """The exported articulated twin: URDF, MJCF, USD, meshes, per-part splats and the simulator check."""
 
     kind = "export_bundle"
     schema_version = 1
 
     files: list[ExportFile] = Field(
         description="Every exported file, paths unique and relative to the export folder (twin.urdf, twin.xml, "
-        "meshes/*.obj, splats/*.ply, sim_check.json)."
+        "twin.usda, payloads/*.usdc, meshes/*.obj, splats/*.ply, sim_check.json)."
     )
     metrics: dict[str, float] = Field(
         default_factory=dict,
         description="Named scalars; unit = suffix: sim_<simulator>_max_error_mm (simulated part pose vs the twin's, "
-        "millimetres), *_count, *_kg, *_s. A simulator that did not run has no entry.",
+        "millimetres; simulators include 'usd' and 'newton_usd' for the USD stage), *_count, *_kg, *_s "
+        "(usd_write_s, usd_check_s: seconds). A simulator that did not run has no entry.",
     )
     notes: list[str] = Field(default_factory=list, description="Remarks for the user (skipped simulators, screw joints).")
 
@@ -145,19 +146,32 @@ class ExportConfig(StageConfig):
     max_collision_pieces: int = Field(default=16, ge=1, description="At most this many convex pieces per part.")
     base_max_collision_pieces: int = Field(default=32, ge=1, description="At most this many convex pieces for the base.")
     density_kg_m3: float = Field(default=500.0, gt=0, description="Uniform density of the parts (500: wood), kg/m^3.")
-    effort: float = Field(default=50.0, gt=0, description="URDF joint effort limit, N m (revolute) or N (prismatic).")
+    effort: float = Field(
+        default=50.0, gt=0, description="Joint effort limit (URDF limit, USD drive maxForce), N m (revolute) or N (prismatic)."
+    )
     velocity: float = Field(default=1.0, gt=0, description="URDF joint velocity limit, rad/s or m/s.")
-    damping: float = Field(default=0.5, ge=0, description="MJCF joint damping, N m s/rad or N s/m.")
-    formats: list[Literal["urdf", "mjcf", "splats"]] = Field(
-        default_factory=lambda: ["urdf", "mjcf", "splats"],
-        description="What to write: 'urdf' (twin.urdf), 'mjcf' (twin.xml), 'splats' (per-part 3DGS .ply files).",
+    damping: float = Field(
+        default=0.5, ge=0, description="Joint damping (MJCF joint, USD passive drive), N m s/rad or N s/m."
+    )
+    formats: list[Literal["urdf", "mjcf", "usd", "splats"]] = Field(
+        default_factory=lambda: ["urdf", "mjcf", "usd", "splats"],
+        description="What to write: 'urdf' (twin.urdf), 'mjcf' (twin.xml), 'usd' (twin.usda: OpenUSD stage with a "
+        "UsdPhysics articulation and the splats under their links), 'splats' (per-part 3DGS .ply files).",
+    )
+    usd_payload_min_bytes: int | None = Field(
+        default=1 << 18,
+        ge=0,
+        description="A link whose visual mesh and splats take more than this many bytes keeps them in a binary "
+        "payload layer payloads/<link>.usdc beside twin.usda; None keeps everything in the text stage.",
     )
     splats_in_link_frames: bool = Field(
         default=True,
         description="Part .ply means shifted into their URDF link frames (origin at the pivot); False keeps all in the canonical frame.",
     )
     check_simulators: bool = Field(
-        default=True, description="Load the files in yourdfpy, PyBullet and MuJoCo and drive each joint through its q(t)."
+        default=True,
+        description="Load the files in yourdfpy, PyBullet and MuJoCo (the USD stage in pxr, and in Newton if installed) "
+        "and drive each joint through its q(t).",
     )
     sim_tolerance_mm: float = Field(
         default=5.0, gt=0, description="A simulated part pose further than this from the twin's is reported as a failure, mm."

@@ -1,16 +1,19 @@
-"""Stage: the articulated twin as simulator files (URDF, MJCF, meshes, per-part splats), checked.
+"""Stage: the articulated twin as simulator files (URDF, MJCF, USD, meshes, per-part splats), checked.
 
 Each part's mesh is TSDF-fused from the dynamic recording with its motion undone (part k is mask
 label k + 1 and joint k), the base from the static recording minus the parts; CoACD makes the
 collision pieces, the mesh volume the inertials. The files are written to a scratch folder, loaded
 in every simulator that is installed, driven through the estimated ``q(t)`` and read back into the
-bundle byte for byte, with the check's results as ``sim_check.json``.
+bundle byte for byte, with the check's results as ``sim_check.json``. The USD stage (``twin.usda``,
+payloads under ``payloads/``) carries the splats under their links and is validated, read back and
+driven the same way (``check_usd``).
 """
 
 from __future__ import annotations
 
 import json
 import tempfile
+import time
 from pathlib import Path
 
 import numpy as np
@@ -23,10 +26,12 @@ from artitwin_core.export import (
     ExportPart,
     SimPart,
     check_in_simulators,
+    check_usd,
     convex_decomposition,
     export_mjcf,
     export_part_plys,
     export_urdf,
+    export_usd,
     fuse_base_mesh,
     fuse_part_mesh,
     mesh_inertial,
@@ -92,7 +97,7 @@ def _read_tree(root: Path) -> list[ExportFile]:
             for p in sorted(root.rglob("*")) if p.is_file()]
 
 
-@stage(name="export", version=1, config=ExportConfig, output=ExportBundle)
+@stage(name="export", version=2, config=ExportConfig, output=ExportBundle)
 def export_twin(
     static: CaptureArtifact,
     static_poses: CameraPoses,
@@ -103,7 +108,7 @@ def export_twin(
     gaussians: GaussianCheckpoint,
     config: ExportConfig,
 ) -> ExportBundle:
-    """URDF + MJCF + OBJ meshes + per-part 3DGS ``.ply`` + ``sim_check.json`` of the twin.
+    """URDF + MJCF + USD + OBJ meshes + per-part 3DGS ``.ply`` + ``sim_check.json`` of the twin.
 
     ``static_poses`` are the static recording's refined poses (canonical frame); ``registration``
     puts the dynamic recording into that frame; joint k moves the pixels of mask label k + 1 and
@@ -170,6 +175,14 @@ def export_twin(
         urdf = (export_urdf(out, base, parts, effort=config.effort, velocity=config.velocity, **common)
                 if "urdf" in config.formats else None)
         mjcf = export_mjcf(out, base, parts, damping=config.damping, **common) if "mjcf" in config.formats else None
+        usd = None
+        if "usd" in config.formats:
+            start = time.perf_counter()
+            written = export_usd(out, base, parts, gaussians=to_core(GaussianParams, gaussians), effort=config.effort,
+                                 damping=config.damping, payload_min_bytes=config.usd_payload_min_bytes, **common)
+            usd = written.path
+            metrics["usd_write_s"] = time.perf_counter() - start
+            notes += [f"usd: {n}" for n in written.notes]
         if "splats" in config.formats:
             params = to_core(GaussianParams, gaussians)
             if not np.any(params.labels >= LABEL_PART):
@@ -178,11 +191,15 @@ def export_twin(
             pivots = [np.asarray(j.pivot, np.float64) for j in core_joints] if config.splats_in_link_frames else None
             plys = export_part_plys(params, out / SPLAT_DIR, part_names=names, pivots=pivots)
             metrics["splat_files_count"] = float(len(plys))
-        if config.check_simulators and (urdf is not None or mjcf is not None):
+        if config.check_simulators and (urdf is not None or mjcf is not None or usd is not None):
             sim_parts = [SimPart(n, j, np.asarray(m.vertices, np.float64) - np.asarray(j.pivot, np.float64))
                          for n, j, m in zip(names, core_joints, meshes, strict=True)]
             results = check_in_simulators(urdf, mjcf, sim_parts, sim_from_canonical=Z_UP_FROM_Y_UP,
                                           tolerance_m=config.sim_tolerance_mm * 1e-3)
+            start = time.perf_counter()
+            results += check_usd(usd, sim_parts, sim_from_canonical=Z_UP_FROM_Y_UP,
+                                 tolerance_m=config.sim_tolerance_mm * 1e-3)
+            metrics["usd_check_s"] = time.perf_counter() - start
             for r in results:
                 if np.isfinite(r.max_error_m):
                     metrics[f"sim_{r.simulator}_max_error_mm"] = r.max_error_m * 1e3

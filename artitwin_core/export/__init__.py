@@ -5,7 +5,9 @@
 ``export_urdf`` / ``export_mjcf`` write a base link plus one jointed child link per part, and
 ``export_part_plys`` splits the Gaussian twin into one standard 3DGS ``.ply`` per label, and
 ``check_in_simulators`` loads the files in yourdfpy, PyBullet and MuJoCo and compares the part poses
-along the estimated ``q(t)`` with the twin's.
+along the estimated ``q(t)`` with the twin's. ``export_usd`` writes the same model as an OpenUSD
+stage (UsdPhysics articulation, the splats as ``UsdVol.ParticleField3DGaussianSplat``) and
+``check_usd`` validates it, reads its joints back and drives them (in pxr and, if installed, Newton).
 """
 
 from artitwin_core.export._collision import convex_decomposition
@@ -17,23 +19,32 @@ from artitwin_core.export._names import sanitize_name
 from artitwin_core.export._ply import export_part_plys
 from artitwin_core.export._simcheck import SIMULATORS, SimPart, SimResult, check_in_simulators
 from artitwin_core.export._urdf import export_urdf
+from artitwin_core.export._usd import UsdResult, export_usd
+from artitwin_core.export._usdcheck import USD_SIMULATORS, UsdJoint, check_usd, read_usd_joints, validate_usd
 
 __all__ = [
     "SIMULATORS",
+    "USD_SIMULATORS",
     "WOOD_DENSITY_KG_M3",
     "Z_UP_FROM_Y_UP",
     "ExportPart",
     "Inertial",
     "SimPart",
     "SimResult",
+    "UsdJoint",
+    "UsdResult",
     "check_in_simulators",
+    "check_usd",
     "clean_mesh",
     "convex_decomposition",
     "export_mjcf",
     "export_part_plys",
     "export_urdf",
+    "export_usd",
     "fuse_base_mesh",
     "fuse_part_mesh",
     "mesh_inertial",
+    "read_usd_joints",
     "sanitize_name",
+    "validate_usd",
 ]

@@ -113,7 +113,8 @@ def build_model(
     parts = [_as_part(p) for p in parts]
     if len(base_mesh.faces) == 0:
         raise InputError("export: the base mesh has no faces; fuse the static recording first.")
-    part_names = unique_names([p.name for p in parts], reserved=("world", "base"))
+    # "joints" is the USD stage's scope beside the links (export_usd).
+    part_names = unique_names([p.name for p in parts], reserved=("world", "base", "joints"))
     notes: list[str] = []
     links = [Link("world", None, [], None)] if sim_from_canonical is not None else []
     base_col = base_collision if base_collision is not None else convex_decomposition(base_mesh, max_parts=32)

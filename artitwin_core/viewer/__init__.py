@@ -8,6 +8,8 @@ residual heat map from the diagnostics' predicted depth. The browser app lives i
 """
 
 from artitwin_core.viewer._files import (
+    list_export_files,
+    model_files,
     read_collision_meshes,
     read_joints_json,
     read_residual,
@@ -34,6 +36,8 @@ __all__ = [
     "residual_by_label",
     "residual_on_gaussians",
     "heat_colors",
+    "list_export_files",
+    "model_files",
     "matrix_to_quat_wxyz",
     "part_poses",
     "pose_splats",

@@ -102,6 +102,25 @@ def read_collision_meshes(export_dir: str | Path, joint_names: list[str], joints
     return pieces
 
 
+# The simulator files of an export folder: what a user opens elsewhere (Isaac Sim, MuJoCo, ROS).
+_MODEL_SUFFIXES = (".urdf", ".xml", ".usda", ".usdc", ".usd")
+
+
+def model_files(paths) -> tuple[str, ...]:
+    """The simulator files among ``paths`` (URDF, MJCF, USD), stages first and payload layers last."""
+    keep = [str(p) for p in paths if Path(p).suffix in _MODEL_SUFFIXES]
+    return tuple(sorted(keep, key=lambda p: (Path(p).parent.name == "payloads", p)))
+
+
+def list_export_files(export_dir: str | Path) -> tuple[str, ...]:
+    """``model_files`` of an export folder (``twin.urdf``, ``twin.xml``, ``twin.usda``,
+    ``payloads/*.usdc``); empty if the folder does not exist."""
+    root = Path(export_dir)
+    if not root.is_dir():
+        return ()
+    return model_files(p for pattern in ("*", "payloads/*") for p in root.glob(pattern) if p.is_file())
+
+
 def read_residual(path: str | Path) -> tuple[np.ndarray | None, np.ndarray | None, np.ndarray | None]:
     """A residual array from ``.npy``: ``[N]`` per Gaussian, or ``[M, 4]`` rows ``(x, y, z, value)``.
 
@@ -156,4 +175,5 @@ def read_twin_files(
         values,
         tuple(collision),
         title=Path(ply).stem,
+        exports=list_export_files(export_dir) if export_dir is not None else (),
     )

@@ -66,6 +66,8 @@ class TwinData:
         residual_values: ``[M]`` residual per point; or None.
         collision: exported collision meshes (may be empty).
         title: shown in the page title.
+        exports: paths of the exported simulator files (URDF, MJCF, USD stage and its payloads), listed
+            to the user; the viewer does not read them.
     """
 
     gaussians: GaussianParams
@@ -77,6 +79,7 @@ class TwinData:
     residual_values: np.ndarray | None = None
     collision: tuple[MeshPiece, ...] = field(default_factory=tuple)
     title: str = "ArtiTwin"
+    exports: tuple[str, ...] = ()
 
     def __post_init__(self) -> None:
         n = self.gaussians.num_gaussians

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import json
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -105,6 +106,9 @@ def test_a_run_folder_gives_twin_joints_cameras_and_collision(tmp_path, door_sce
     run = _write_run(tmp_path, door_scene, door_twin)
     pivot = truth.joints[0].pivot
     trimesh.creation.box(extents=(0.1, 0.1, 0.1)).export(run / "export" / "meshes" / "part_0_collision_00.obj")
+    (run / "export" / "payloads").mkdir()
+    for name in ("twin.urdf", "twin.xml", "twin.usda", "payloads/base.usdc", "sim_check.json"):
+        (run / "export" / name).write_text("")
 
     twin = load_twin(run)
     np.testing.assert_array_equal(twin.gaussians.means, door_twin.gaussians.means)
@@ -116,6 +120,9 @@ def test_a_run_folder_gives_twin_joints_cameras_and_collision(tmp_path, door_sce
     assert piece.part == 0
     np.testing.assert_allclose(piece.vertices.mean(0), pivot, atol=1e-6)
     assert twin.residual_values is None  # no diagnostics in this run
+    # The simulator files the user opens elsewhere, stages first and the USD payload last.
+    assert [Path(p).relative_to(run / "export").as_posix() for p in twin.exports] == [
+        "twin.urdf", "twin.usda", "twin.xml", "payloads/base.usdc"]
 
 
 def test_a_run_folder_with_diagnostics_gives_the_depth_residual(tmp_path, door_scene, door_twin):

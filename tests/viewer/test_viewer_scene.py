@@ -241,11 +241,15 @@ def test_view_serves_a_ply_with_its_joints_and_refuses_a_missing_path(tmp_path, 
     (tmp_path / "joints.json").write_text(json.dumps({"joints": [
         {"name": name, "type": j.joint_type, "axis": j.axis.tolist(), "pivot": j.pivot.tolist(),
          "range": j.q_range.tolist()}]}))
+    (tmp_path / "export").mkdir()
+    for f in ("twin.urdf", "twin.usda"):
+        (tmp_path / "export" / f).write_text("")
     lines: list[str] = []
     v = view(tmp_path / "twin.ply", port=free_port(), joints=tmp_path / "joints.json", labels=tmp_path / "labels.npy",
-             block=False, echo=lines.append)
+             export_dir=tmp_path / "export", block=False, echo=lines.append)
     try:
         assert v.url in lines[-1]
+        assert "twin.urdf, twin.usda" in lines[-2] and "Isaac Sim" in lines[-2]  # the USD stage is listed
         assert f"{door_twin.gaussians.num_gaussians} Gaussians, 1 joint(s)" in lines[0]
         assert sum(h.buffer.shape[0] for h, _, _ in v.splats.values()) == door_twin.gaussians.num_gaussians
         assert (v.sliders[0].min, v.sliders[0].max) == tuple(float(x) for x in j.q_range)
