@@ -11,8 +11,8 @@ import numpy as np
 import pytest
 
 from artitwin_core.masks import MaskSequence
-from flows.scene import run_scene_inline
 from flows._pipeline import SceneFailed
+from flows.scene import run_scene_inline
 from schemas import PipelineConfig
 
 
