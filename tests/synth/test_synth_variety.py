@@ -329,7 +329,7 @@ def test_random_scene_spec_spans_the_family(monkeypatch):
     assert {d["shelves"] for d in draws} == {0, 1, 2, 3}
     assert all(d["shelves"] == 0 for d in draws if d["furniture"] == "drawer")
     lags = [dict(d["effects"]).get("pose_lag") for d in draws]
-    lag_frames = np.array([lag["seconds"] * 30 / 2 for lag in lags if lag])
+    lag_frames = np.array([lag["seconds"] * 30 / 3 for lag in lags if lag])  # dynamic stride 3
     assert 0.15 < len(lag_frames) / 300 < 0.35 and lag_frames.min() >= 0.49 and lag_frames.max() <= 3.01
     assert all(lag["recordings"] == "dynamic" for lag in lags if lag)
     exposure = [dict(d["effects"]).get("exposure") for d in draws]
@@ -340,7 +340,7 @@ def test_random_scene_spec_spans_the_family(monkeypatch):
     monkeypatch.undo()
     for s in range(40):  # every draw is a valid spec
         spec = random_scene_spec(s, static_shift_m=0.0)
-        assert spec.seed == s and spec.rgb_size == (256, 192)
+        assert spec.seed == s and spec.rgb_size == (192, 144) and spec.depth_size == (96, 72)
     fixed = random_scene_spec(3, furniture="drawer", static_shift_m=0.0)
     assert fixed.furniture == "drawer" and fixed.shelves == 0
     assert random_scene_spec(3, static_shift_m=0.0).hand_model == fixed.hand_model  # other draws unmoved
