@@ -241,9 +241,10 @@ def evaluate(scene, summary: dict, run_dir: Path) -> dict:
     }
 
 
-def registration_error(summary: dict, truth) -> dict:
-    """The ``register`` stage's transform against the truth: rotation (deg) and the largest
-    displacement (mm) it gives a true part's pivot; empty if the stage's output is not there."""
+def registration_error(summary: dict, truth, store: Path) -> dict:
+    """The ``register`` stage's transform (from ``store``, the run's own) against the truth:
+    rotation (deg) and the largest displacement (mm) it gives a true part's pivot; empty if the
+    stage's output is not there."""
     from infra.store import ArtifactStore
     from schemas import Registration
 
@@ -251,7 +252,7 @@ def registration_error(summary: dict, truth) -> dict:
     if not stage or not stage.get("key"):
         return {}
     try:
-        reg = ArtifactStore(summary["store"]).get(stage["key"], Registration)
+        reg = ArtifactStore(str(store)).get(stage["key"], Registration)
     except Exception:  # noqa: BLE001 - a diagnostic column, never a reason to lose the scene's row
         return {}
     err = reg.canonical_from_session @ np.linalg.inv(truth.canonical_from_dynamic_session)
@@ -305,7 +306,7 @@ def run_one(seed: int, workdir: Path, reuse: bool = False) -> dict:
         if failure and "error" not in result:
             result["error"] = failure
         result["est_types"] = ",".join(j["type"] for j in summary.get("joints", []))
-        result.update(registration_error(summary, scene.truth))
+        result.update(registration_error(summary, scene.truth, workdir / "store"))
     if "error" in result or summary is None:
         result["status"] = "crash"
         result.setdefault("error", "no summary.json written")

@@ -17,7 +17,12 @@ Example::
 """
 
 from artitwin_core.synth._effects import EFFECTS, Effect
-from artitwin_core.synth._generate import SyntheticScene, generate_scene, render_state
+from artitwin_core.synth._generate import (
+    SyntheticScene,
+    generate_scene,
+    render_state,
+    static_shift_for_overlap,
+)
 from artitwin_core.synth._io import load_ground_truth, load_scene_spec, write_scene
 from artitwin_core.synth._random import random_scene_spec
 from artitwin_core.synth._spec import BENCHMARK_SCENES, SceneSpec
@@ -35,5 +40,6 @@ __all__ = [
     "load_scene_spec",
     "random_scene_spec",
     "render_state",
+    "static_shift_for_overlap",
     "write_scene",
 ]
