@@ -258,26 +258,31 @@ def compare(
 
 @app.command()
 def synth(
-    name: Annotated[str, typer.Argument(help="Benchmark scene name (see --list).")] = "tiny",
+    name: Annotated[str, typer.Argument(help="Benchmark scene name, or 'random' (see --list).")] = "tiny",
     out: Annotated[Path, typer.Option("--out", help="Scene folder to write.")] = Path("scenes/tiny"),
     fmt: Annotated[str, typer.Option("--format", help="r3d, nerfstudio, record3d-exr or stray.")] = "r3d",
-    seed: Annotated[int | None, typer.Option("--seed", help="Override the scene's seed.")] = None,
+    seed: Annotated[int | None, typer.Option("--seed", help="Override the scene's seed (random: which draw, default 0).")] = None,
     list_: Annotated[bool, typer.Option("--list", help="List the named scenes and exit.")] = False,
 ) -> None:
     """Render a synthetic articulated scene with exact ground truth."""
     import dataclasses
 
-    from artitwin_core.synth import BENCHMARK_SCENES, generate_scene, write_scene
+    from artitwin_core.synth import BENCHMARK_SCENES, generate_scene, random_scene_spec, write_scene
 
     if list_:
         for key, spec in BENCHMARK_SCENES.items():
             typer.echo(f"{key}: {spec.furniture}, {spec.texture}")
+        typer.echo("random: a scene drawn from the whole family (furniture, hand, handle, camera paths, "
+                   "overlap, pose lag, exposure ...); --seed N picks the draw")
         return
-    if name not in BENCHMARK_SCENES:
-        _fail(f"unknown scene {name!r}; known: {', '.join(BENCHMARK_SCENES)}")
-    spec = BENCHMARK_SCENES[name]
-    if seed is not None:
-        spec = dataclasses.replace(spec, seed=seed)
+    if name == "random":
+        spec = random_scene_spec(0 if seed is None else seed)
+    elif name not in BENCHMARK_SCENES:
+        _fail(f"unknown scene {name!r}; known: {', '.join(BENCHMARK_SCENES)}, random")
+    else:
+        spec = BENCHMARK_SCENES[name]
+        if seed is not None:
+            spec = dataclasses.replace(spec, seed=seed)
     with console.status(f"rendering {name} ..."):
         write_scene(generate_scene(spec), out, fmt=fmt)
     typer.echo(str(out))

@@ -9,6 +9,7 @@ z = 0 facing +z. ``render_state`` renders the true scene at any joint state and 
 Example::
 
     scene = generate_scene(BENCHMARK_SCENES["tiny"])        # ~1 s on one core
+    other = generate_scene(random_scene_spec(seed=3))        # any scene of the family
     write_scene(scene, "out/tiny")                           # static.r3d, dynamic.r3d, ground_truth/
     truth = load_ground_truth("out/tiny")
     rgb, depth, part_mask = render_state(scene, truth.static_world_from_camera[0],
@@ -16,8 +17,14 @@ Example::
 """
 
 from artitwin_core.synth._effects import EFFECTS, Effect
-from artitwin_core.synth._generate import SyntheticScene, generate_scene, render_state
+from artitwin_core.synth._generate import (
+    SyntheticScene,
+    generate_scene,
+    render_state,
+    static_shift_for_overlap,
+)
 from artitwin_core.synth._io import load_ground_truth, load_scene_spec, write_scene
+from artitwin_core.synth._random import random_scene_spec
 from artitwin_core.synth._spec import BENCHMARK_SCENES, SceneSpec
 from artitwin_core.synth._types import SceneGroundTruth
 
@@ -31,6 +38,8 @@ __all__ = [
     "generate_scene",
     "load_ground_truth",
     "load_scene_spec",
+    "random_scene_spec",
     "render_state",
+    "static_shift_for_overlap",
     "write_scene",
 ]

@@ -26,6 +26,7 @@ from artitwin_core.synth._motion import (
     drift_and_jitter,
     session_transform,
 )
+from artitwin_core.synth._overlap import overlap_fraction
 from artitwin_core.synth._render import WorldState, render_supersampled, render_view
 from artitwin_core.synth._scene import HAND_LABEL, SceneModel, build_scene, part_motion, sub_rng
 from artitwin_core.synth._sensor import (
@@ -121,7 +122,7 @@ class _Recorder:
             max_range_m=noise.get("max_range_m", 5.0),
             scale=bias.get("scale", 1.0), offset_m=bias.get("offset_m", 0.0),
         )
-        return rgb, depth, conf, view.label
+        return rgb, depth, conf, view.label, dview.depth, dview.label
 
     def capture(self, frame_ids, rgb, depth, conf, recorded_poses) -> Capture:
         n = len(frame_ids)
@@ -156,7 +157,7 @@ def generate_scene(spec: SceneSpec) -> SyntheticScene:
     # Static: parts closed, no hand, a wide sweep. Its world frame is the canonical frame.
     ids_s = np.arange(spec.static_frames) * spec.static_stride
     t_s = ids_s / FPS
-    path_s = camera_path(model, spec.seed, "static", float(t_s[-1]))
+    path_s = camera_path(model, spec.seed, "static", float(t_s[-1]), spec.static_path, spec.static_shift_m)
     closed = WorldState(model, [0.0] * n_parts)
     rec = _Recorder(spec, "static")
     frames = [rec.frame(lambda _t: closed, path_s.world_from_camera, t) for t in t_s]
@@ -164,13 +165,14 @@ def generate_scene(spec: SceneSpec) -> SyntheticScene:
     recorded_s = drift_and_jitter(path_s.world_from_camera(rec.recorded_pose_times(t_s)), t_s, rec.effects,
                                   sub_rng(spec.seed, "pose_s"))
     static = rec.capture(ids_s, *zip(*[f[:3] for f in frames], strict=True), recorded_s)
+    static_seen = (np.stack([f[4] for f in frames]), path_s.world_from_camera(t_s + rec.dt), rec.k_depth)
 
     # Dynamic: a short sweep while the hand opens each part in turn.
     ids_d = np.arange(spec.dynamic_frames) * spec.dynamic_stride
     t_d = ids_d / FPS
     duration = float(t_d[-1])
-    path_d = camera_path(model, spec.seed, "dynamic", duration)
-    story = Interaction(model, duration, path_d, float(spec.hand_occlusion))
+    path_d = camera_path(model, spec.seed, "dynamic", duration, spec.dynamic_path)
+    story = Interaction(model, duration, path_d, float(spec.hand_occlusion), spec.hand_model, spec.arm_from)
 
     def state_at(t: float) -> WorldState:
         return WorldState(model, story.q(t), story.hand(t))
@@ -184,6 +186,14 @@ def generate_scene(spec: SceneSpec) -> SyntheticScene:
     dynamic = rec.capture(ids_d, *zip(*[f[:3] for f in frames], strict=True), recorded_d)
 
     labels = np.stack([f[3] for f in frames])
+    closed_from_world = np.stack([
+        [invert_se3(part_motion(part, story.q(float(t + rec.dt))[k])) for t in t_d]
+        for k, part in enumerate(model.parts)
+    ]) if n_parts else np.zeros((0, len(t_d), 4, 4))
+    overlap = overlap_fraction(
+        static_seen[0], static_seen[1], np.stack([f[4] for f in frames]), np.stack([f[5] for f in frames]),
+        path_d.world_from_camera(t_d + rec.dt), closed_from_world, static_seen[2], hand_label=HAND_LABEL,
+    )
     part_masks = np.where(labels >= 0, labels + 1, 0).astype(np.uint8)
     q = np.array([story.q(t) for t in t_d]).reshape(len(t_d), n_parts)
     joints, motions = [], []
@@ -208,6 +218,7 @@ def generate_scene(spec: SceneSpec) -> SyntheticScene:
         canonical_from_dynamic_session=canonical_from_session,
         effects=effects,
         part_world_from_closed=np.stack(motions) if motions else np.zeros((0, len(t_d), 4, 4)),
+        overlap_fraction=overlap,
     )
     return SyntheticScene(static=static, dynamic=dynamic, truth=truth, spec=spec)
 
@@ -253,3 +264,49 @@ def render_state(
     depth = np.where(np.isfinite(view.depth), view.depth, np.nan).astype(np.float32)
     part_mask = np.where(view.label >= 0, view.label + 1, 0).astype(np.uint8)
     return rgb, depth, part_mask
+
+
+def static_shift_for_overlap(spec: SceneSpec, target: float, size: tuple[int, int] = (40, 30)) -> float:
+    """The ``static_shift_m`` (0-1.5 m, in 5 cm steps) whose overlap fraction comes nearest to
+    ``target``: the scene's depth rendered small (``size`` pixels, no shading, no sensor) at
+    shift up to a little past the target, measured as ``SceneGroundTruth.overlap_fraction`` is
+    (within ~0.03 of it at full size). 0 if the unshifted scene already overlaps less. Cost: one
+    small depth render per frame and shift, a few seconds on one core.
+    """
+    import dataclasses
+
+    from artitwin_core.synth._render import render_view
+
+    if not 0.0 < target < 1.0:
+        raise InputError(f"static_shift_for_overlap: target is {target}; use a fraction in (0, 1).")
+    base = dataclasses.replace(spec, static_shift_m=0.0)
+    model = scene_model(base)
+    w, h = size
+    k = default_intrinsics(w, h)
+    n_parts = len(model.parts)
+    t_d = np.arange(spec.dynamic_frames) * spec.dynamic_stride / FPS
+    path_d = camera_path(model, spec.seed, "dynamic", float(t_d[-1]), spec.dynamic_path)
+    story = Interaction(model, float(t_d[-1]), path_d, float(spec.hand_occlusion), spec.hand_model, spec.arm_from)
+    poses_d = path_d.world_from_camera(t_d)
+    views = [render_view(WorldState(model, story.q(t), story.hand(t)), poses_d[i], k, w, h, shade=False)
+             for i, t in enumerate(t_d)]
+    depth_d, labels_d = np.stack([v.depth for v in views]), np.stack([v.label for v in views])
+    closed_from_world = np.stack([
+        [invert_se3(part_motion(part, story.q(float(t))[j])) for t in t_d] for j, part in enumerate(model.parts)
+    ]) if n_parts else np.zeros((0, len(t_d), 4, 4))
+    t_s = np.arange(spec.static_frames) * spec.static_stride / FPS
+    closed = WorldState(model, [0.0] * n_parts)
+    best = (np.inf, 0.0)
+    for shift in np.round(np.arange(0.0, 1.5001, 0.05), 2):
+        path_s = camera_path(model, spec.seed, "static", float(t_s[-1]), spec.static_path, float(shift))
+        poses_s = path_s.world_from_camera(t_s)
+        depth_s = np.stack([render_view(closed, p, k, w, h, shade=False).depth for p in poses_s])
+        frac = overlap_fraction(depth_s, poses_s, depth_d, labels_d, poses_d, closed_from_world, k,
+                                stride=1, hand_label=HAND_LABEL)
+        if shift == 0.0 and frac <= target:
+            return 0.0
+        if abs(frac - target) < best[0]:
+            best = (abs(frac - target), float(shift))
+        if frac < target - 0.1:  # the overlap falls (not strictly) with the shift: past it
+            break
+    return best[1]

@@ -79,6 +79,7 @@ def write_ground_truth(truth: SceneGroundTruth, spec: SceneSpec, folder: str | P
                            "cameras OpenCV axes; part_masks 0 = none, k + 1 = part k",
         "joints": joints,
         "effects": truth.effects,
+        "overlap_fraction": truth.overlap_fraction,
         "spec": spec_to_json(spec),
     }
     (folder / "truth.json").write_text(json.dumps(_jsonable(meta), indent=2))
@@ -118,6 +119,7 @@ def load_ground_truth(scene_dir: str | Path) -> SceneGroundTruth:
         canonical_from_dynamic_session=arrays["canonical_from_dynamic_session"],
         effects=meta["effects"],
         part_world_from_closed=arrays.get("part_world_from_closed"),
+        overlap_fraction=meta.get("overlap_fraction"),
     )
 
 

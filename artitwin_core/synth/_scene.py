@@ -24,7 +24,6 @@ ROOM_HALF_WIDTH_M = 2.3
 ROOM_FRONT_Z_M = 3.2
 CEILING_M = 2.6
 BOARD_M = 0.018  # panel thickness
-FRONT_M = 0.02  # door / drawer-front thickness
 
 
 def sub_rng(seed: int, purpose: str) -> np.random.Generator:
@@ -206,12 +205,46 @@ def _interior_items(rng, lo, hi, label: int, prefix: str, min_y: float) -> list[
     return items
 
 
+def _rot_x_quarter(vertices: np.ndarray) -> np.ndarray:
+    """Turn a mesh built along local y (``cylinder``) to point along +z."""
+    return vertices @ axis_angle_to_matrix(np.array([1.0, 0.0, 0.0]), np.pi / 2).T
+
+
+def handle_mesh(shape: str, vertical: bool, length: float, cx: float, face_z: float):
+    """A handle on a front whose outer face is the plane ``z = face_z`` (local frame), centred at
+    ``(cx, 0)``: ``(vertices, triangles, grip_z)`` or None for ``"none"``, and the z the hand grips.
+
+    ``"bar"`` and ``"long-bar"`` are a grip bar on two standoffs, 3-4.5 cm proud of the face,
+    ``length`` metres long (vertical or horizontal); ``"knob"`` a round knob 3.2 cm across.
+    """
+    if shape == "none":
+        return None, face_z + 0.01
+    if shape == "knob":
+        v, t = cylinder(0.016, 0.028, segments=16)
+        return (_rot_x_quarter(v) + [cx, 0.0, face_z], t), face_z + 0.02
+    hl = length
+    if vertical:
+        v, t = boxes([
+            ((cx - 0.01, -hl / 2, face_z + 0.03), (cx + 0.01, hl / 2, face_z + 0.045)),
+            ((cx - 0.006, -hl / 2 + 0.01, face_z), (cx + 0.006, -hl / 2 + 0.025, face_z + 0.03)),
+            ((cx - 0.006, hl / 2 - 0.025, face_z), (cx + 0.006, hl / 2 - 0.01, face_z + 0.03)),
+        ])
+    else:
+        v, t = boxes([
+            ((cx - hl / 2, -0.01, face_z + 0.03), (cx + hl / 2, 0.01, face_z + 0.045)),
+            ((cx - hl / 2 + 0.01, -0.006, face_z), (cx - hl / 2 + 0.025, 0.006, face_z + 0.03)),
+            ((cx + hl / 2 - 0.025, -0.006, face_z), (cx + hl / 2 - 0.01, 0.006, face_z + 0.03)),
+        ])
+    return (v, t), face_z + 0.0375
+
+
 def build_scene(spec: SceneSpec) -> SceneModel:
     """The geometry of ``spec``'s scene, parts closed. Deterministic in ``spec.seed``."""
     rng = sub_rng(spec.seed, "layout")
     low = spec.texture == "low-texture"
     w, h, d = spec.size_m
     hw, t = w / 2, BOARD_M
+    front_m = spec.front_thickness_m
     objects: list[SceneObject] = []
     parts: list[Part] = []
     effects = spec.resolved_effects
@@ -273,27 +306,41 @@ def build_scene(spec: SceneSpec) -> SceneModel:
         k = len(parts)
         hinge = float(rng.choice([-1.0, 1.0]))  # -1: hinge on the left edge (x = -w/2)
         axis = np.array([0.0, hinge, 0.0])  # positive q swings the free edge outwards (+z)
-        pivot = np.array([hinge * hw, (y0 + y1) / 2, 0.0])
+        gap = spec.hinge_gap_m
+        pivot = np.array([hinge * (hw - gap), (y0 + y1) / 2, 0.0])
         pose = make_se3(np.eye(3), pivot)
         # Door in its local frame: hinge line at x = 0, free edge towards x = -hinge * w.
-        xs = sorted([0.0, -hinge * (w - 0.003)])
-        dv, dt = boxes([((xs[0], y0 + 0.002 - pivot[1], 0), (xs[1], y1 - 0.002 - pivot[1], FRONT_M))])
+        xs = sorted([0.0, -hinge * (w - 0.003 - gap)])
+        dv, dt = boxes([((xs[0], y0 + 0.002 - pivot[1], 0), (xs[1], y1 - 0.002 - pivot[1], front_m))])
         dtex, dparams = _wood_params(rng, low)
         objects.append(SceneObject("door", dv, dt, dtex, dparams, k, pose))
-        hx = -hinge * (w - 0.07)
-        hl = min(0.16, 0.4 * (y1 - y0))
-        hv, ht = boxes([
-            ((hx - 0.01, -hl / 2, FRONT_M + 0.03), (hx + 0.01, hl / 2, FRONT_M + 0.045)),
-            ((hx - 0.006, -hl / 2 + 0.01, FRONT_M), (hx + 0.006, -hl / 2 + 0.025, FRONT_M + 0.03)),
-            ((hx - 0.006, hl / 2 - 0.025, FRONT_M), (hx + 0.006, hl / 2 - 0.01, FRONT_M + 0.03)),
-        ])
-        objects.append(SceneObject("door_handle", hv, ht, "solid", metal, k, pose))
-        lo, hi = np.array([-hw + t, y0, -d + t]), np.array([hw - t, y1 - t, 0])
-        floor_y = y0 + (t / 2 if y0 > 0 else t)
-        objects.extend(_interior_items(sub_rng(spec.seed, "door_items"), lo, hi, STATIC_LABEL, "shelf", floor_y))
+        hx = -hinge * (w - gap - 0.07)
+        length = min(0.16, 0.4 * (y1 - y0)) if spec.handle != "long-bar" else min(0.6, 0.7 * (y1 - y0))
+        handle, grip_z = handle_mesh(spec.handle, True, length, hx, front_m)
+        if handle is not None:
+            objects.append(SceneObject("door_handle", *handle, "solid", metal, k, pose))
+        if spec.shelves:
+            # Boards set back from the front, clear of the door's back face.
+            step = (y1 - y0) / (spec.shelves + 1)
+            ys = [y0 + step * (i + 1) for i in range(spec.shelves)]
+            sv, st = boxes([((-hw + t, y - t / 2, -d + t), (hw - t, y + t / 2, -0.02)) for y in ys])
+            objects.append(SceneObject("shelves", sv, st, tex, tex_params, STATIC_LABEL))
+        if spec.interior_items:
+            floor_y = y0 + (t / 2 if y0 > 0 else t)
+            lo, hi = np.array([-hw + t, y0, -d + t]), np.array([hw - t, y1 - t, 0])
+            if spec.shelves:  # the bottom level ends under the first shelf; then one level per shelf
+                levels = [floor_y] + [y + t / 2 for y in ys]
+                tops = [y - t / 2 for y in ys] + [y1 - t]
+            else:
+                levels, tops = [floor_y], [hi[1]]
+            for i, (ly, ty) in enumerate(zip(levels, tops, strict=True)):
+                objects.extend(_interior_items(
+                    sub_rng(spec.seed, "door_items" if i == 0 else f"door_items{i}"),
+                    lo, np.array([hi[0], ty, hi[2]]), STATIC_LABEL, "shelf" if i == 0 else f"shelf{i}", ly,
+                ))
         part = Part(
             "door", "revolute", axis, pivot, float(spec.door_open_rad),
-            grip=pivot + [hx, 0, FRONT_M + 0.0375], front=np.array([0.0, 0.0, 1.0]),
+            grip=pivot + [hx, 0, grip_z], front=np.array([0.0, 0.0, 1.0]),
             handle_dir=UP.copy(), d_free=np.array([-hinge, 0.0, 0.0]),
         )
         if "screw_joint" in effects:
@@ -307,39 +354,37 @@ def build_scene(spec: SceneSpec) -> SceneModel:
         k = len(parts) if moving else STATIC_LABEL
         name = "drawer" if moving else "drawer_fixed"
         ymid = (y0 + y1) / 2
-        pivot = np.array([0.0, ymid, FRONT_M])
+        pivot = np.array([0.0, ymid, front_m])
         pose = make_se3(np.eye(3), pivot)
-        fv, ft = boxes([((-hw + 0.003, y0 + 0.003 - ymid, -FRONT_M), (hw - 0.003, y1 - 0.003 - ymid, 0))])
+        fv, ft = boxes([((-hw + 0.003, y0 + 0.003 - ymid, -front_m), (hw - 0.003, y1 - 0.003 - ymid, 0))])
         ftex, fparams = _wood_params(rng, low)
         objects.append(SceneObject(f"{name}_front", fv, ft, ftex, fparams, k, pose))
-        hl = min(0.25, 0.4 * w)
-        hv, ht = boxes([
-            ((-hl / 2, -0.01, 0.03), (hl / 2, 0.01, 0.045)),
-            ((-hl / 2 + 0.01, -0.006, 0), (-hl / 2 + 0.025, 0.006, 0.03)),
-            ((hl / 2 - 0.025, -0.006, 0), (hl / 2 - 0.01, 0.006, 0.03)),
-        ])
-        objects.append(SceneObject(f"{name}_handle", hv, ht, "solid", metal, k, pose))
+        length = min(0.25, 0.4 * w) if spec.handle != "long-bar" else min(0.7, 0.8 * w)
+        handle, grip_z = handle_mesh(spec.handle, False, length, 0.0, 0.0)
+        if handle is not None:
+            objects.append(SceneObject(f"{name}_handle", *handle, "solid", metal, k, pose))
         if not moving:
             return
         # The drawer box behind its front, in the same local frame (origin at the front's face).
         bt, x0, x1 = 0.012, -hw + t + 0.004, hw - t - 0.004
         # Clear of the board below (the carcass bottom, or half a divider).
         yb0, yb1 = y0 + (t if y0 == 0 else t / 2) + 0.004 - ymid, y1 - 0.03 - ymid
-        zb0, zb1 = -(d - t - 0.01) - FRONT_M, -FRONT_M
+        zb0, zb1 = -(d - t - 0.01) - front_m, -front_m
         bv, btr = boxes([
             ((x0, yb0, zb0), (x1, yb0 + bt, zb1)), ((x0, yb0, zb0), (x0 + bt, yb1, zb1)),
             ((x1 - bt, yb0, zb0), (x1, yb1, zb1)), ((x0, yb0, zb0), (x1, yb1, zb0 + bt)),
         ])
         btex, bparams = _wood_params(rng, low)
         objects.append(SceneObject("drawer_box", bv, btr, btex, bparams, k, pose))
-        items = _interior_items(sub_rng(spec.seed, "drawer_items"), np.array([x0 + bt, yb0, zb0 + bt]),
-                                np.array([x1 - bt, yb1, zb1]), k, "drawer_item", yb0 + bt)
-        for it in items:  # contents ride with the drawer, so they carry its label
-            it.world_from_local = pose @ it.world_from_local
-        objects.extend(items)
+        if spec.interior_items:
+            items = _interior_items(sub_rng(spec.seed, "drawer_items"), np.array([x0 + bt, yb0, zb0 + bt]),
+                                    np.array([x1 - bt, yb1, zb1]), k, "drawer_item", yb0 + bt)
+            for it in items:  # contents ride with the drawer, so they carry its label
+                it.world_from_local = pose @ it.world_from_local
+            objects.extend(items)
         part = Part(
             "drawer", "prismatic", np.array([0.0, 0.0, 1.0]), pivot.copy(), float(spec.drawer_open_m),
-            grip=pivot + [0, 0, 0.0375], front=np.array([0.0, 0.0, 1.0]),
+            grip=pivot + [0, 0, grip_z], front=np.array([0.0, 0.0, 1.0]),
             handle_dir=np.array([1.0, 0.0, 0.0]),
             tilt_pivot=pivot + [0, yb0, zb0],
         )

@@ -9,6 +9,12 @@ from artitwin_core.synth._effects import resolve_effects
 
 FURNITURE_KINDS = ("door", "drawer", "door+drawer")
 TEXTURE_KINDS = ("textured", "low-texture")
+HAND_MODELS = ("palm", "sphere", "thin", "glove", "none")
+ARM_SIDES = ("auto", "left", "right", "above")
+HANDLE_SHAPES = ("bar", "knob", "long-bar", "none")
+CAMERA_PATHS = ("orbit", "walk", "closeup")
+DOOR_MAX_RAD = 1.92  # 110 degrees
+MAX_SHELVES = 4
 
 
 @dataclass(frozen=True)
@@ -24,7 +30,8 @@ class SceneSpec:
             door; the hand opens the door, then the drawer).
         texture: ``"textured"`` (wood grain) or ``"low-texture"`` (white painted furniture).
         size_m: cabinet ``(width, height, depth)`` in metres.
-        door_open_rad: how far the door opens in the dynamic recording (radians).
+        door_open_rad: how far the door opens in the dynamic recording (radians, up to 1.92 =
+            110 degrees).
         drawer_open_m: how far the drawer slides out (metres, less than the depth).
         static_frames, dynamic_frames: frames in each recording.
         static_stride, dynamic_stride: the recordings are 30 fps streams of which every
@@ -36,6 +43,27 @@ class SceneSpec:
         noise_level: multiplies the RGB sensor noise and the depth noise (0 = noise-free).
         hand_occlusion: 0 = no hand (the part moves by itself), 1 = a hand and arm reaching in
             from the lower right, 2 = a bigger arm crossing the view.
+        hand_model: the hand that opens the parts: ``"palm"`` (a box palm with capsule fingers
+            on a two-segment arm), ``"sphere"`` (a ball on a straight forearm cylinder), ``"thin"``
+            (a small hand on a thin arm), ``"glove"`` (a box mitten on a box sleeve) or ``"none"``
+            (the parts move by themselves, as ``hand_occlusion=0``).
+        arm_from: where the arm comes from: ``"auto"`` (the handle's side of the view; the other
+            side at ``hand_occlusion`` 2), ``"left"``, ``"right"`` (the lower left or right of
+            the view, whatever the handle's side) or ``"above"`` (the top of the view).
+        hinge_gap_m: gap (metres) between a door's hinge edge and the carcass's outer edge; the
+            door turns about its own back hinge-side edge, set in by this much.
+        front_thickness_m: thickness (metres) of doors and drawer fronts.
+        shelves: shelf boards in the door's compartment, evenly spaced (none in a drawer chest).
+        interior_items: whether objects stand inside the cabinet and its drawer.
+        handle: ``"bar"`` (a short bar: vertical on doors, horizontal on drawers), ``"knob"``,
+            ``"long-bar"`` (most of the door's height, most of the drawer's width) or ``"none"``
+            (a plain front; the hand pulls at its edge).
+        static_path, dynamic_path: each recording's camera path: ``"orbit"`` (an arc around the
+            furniture), ``"walk"`` (walking past it: mostly translation, with step bob) or
+            ``"closeup"`` (an arc 0.6-0.9 m from the cabinet's front).
+        static_shift_m: moves the static sweep this far (metres) along the cabinet's front, away
+            from the side the dynamic recording watches from, so the two recordings overlap
+            only partly (``SceneGroundTruth.overlap_fraction`` says how much).
         session_offset_m: distance (metres) between the two recordings' session origins; the yaw
             between them is drawn uniformly from [-pi, pi).
         effects: ``((name, {param: value}), ...)`` from ``EFFECTS``.
@@ -59,6 +87,16 @@ class SceneSpec:
     rgb_supersample: int = 1
     noise_level: float = 1.0
     hand_occlusion: float = 1.0
+    hand_model: str = "palm"
+    arm_from: str = "auto"
+    hinge_gap_m: float = 0.0
+    front_thickness_m: float = 0.02
+    shelves: int = 0
+    interior_items: bool = True
+    handle: str = "bar"
+    static_path: str = "orbit"
+    dynamic_path: str = "orbit"
+    static_shift_m: float = 0.0
     session_offset_m: float = 1.0
     effects: tuple = ()
     seed: int = 0
@@ -75,8 +113,10 @@ class SceneSpec:
             )
         if not 0.0 < self.drawer_open_m < d - 0.06:
             raise InputError(f"SceneSpec.drawer_open_m must be in (0, depth - 0.06) = (0, {d - 0.06:.2f}) m.")
-        if not 0.0 < self.door_open_rad <= 1.9:
-            raise InputError("SceneSpec.door_open_rad must be in (0, 1.9] radians.")
+        if not 0.0 < self.door_open_rad <= DOOR_MAX_RAD:
+            raise InputError(
+                f"SceneSpec.door_open_rad is {self.door_open_rad}; use (0, {DOOR_MAX_RAD}] radians (110 degrees)."
+            )
         for name in ("static_frames", "dynamic_frames"):
             if getattr(self, name) < 2:
                 raise InputError(f"SceneSpec.{name} must be at least 2.")
@@ -93,6 +133,28 @@ class SceneSpec:
             )
         if self.noise_level < 0 or self.hand_occlusion < 0 or self.session_offset_m < 0:
             raise InputError("SceneSpec.noise_level, hand_occlusion and session_offset_m must be >= 0.")
+        for name, allowed in (("hand_model", HAND_MODELS), ("arm_from", ARM_SIDES), ("handle", HANDLE_SHAPES),
+                              ("static_path", CAMERA_PATHS), ("dynamic_path", CAMERA_PATHS)):
+            if getattr(self, name) not in allowed:
+                raise InputError(f"SceneSpec.{name} is {getattr(self, name)!r}; use one of {allowed}.")
+        if not 0.0 <= self.hinge_gap_m <= 0.015:
+            raise InputError(
+                f"SceneSpec.hinge_gap_m is {self.hinge_gap_m}; use 0-0.015 m (a wider gap than the 18 mm "
+                "side board would open onto the cabinet's inside)."
+            )
+        if not 0.008 <= self.front_thickness_m <= 0.05:
+            raise InputError(f"SceneSpec.front_thickness_m is {self.front_thickness_m}; use 0.008-0.05 m.")
+        if isinstance(self.shelves, bool) or not isinstance(self.shelves, int) or not 0 <= self.shelves <= MAX_SHELVES:
+            raise InputError(f"SceneSpec.shelves is {self.shelves!r}; use a whole number 0-{MAX_SHELVES}.")
+        if self.shelves and self.furniture == "drawer":
+            raise InputError(
+                "SceneSpec.shelves go in a door's compartment, and furniture='drawer' has none; set shelves=0 "
+                "or use furniture='door' or 'door+drawer'."
+            )
+        if not isinstance(self.interior_items, bool):
+            raise InputError(f"SceneSpec.interior_items is {self.interior_items!r}; use True or False.")
+        if not 0.0 <= self.static_shift_m <= 1.5:
+            raise InputError(f"SceneSpec.static_shift_m is {self.static_shift_m}; use 0-1.5 m (0: full overlap).")
         resolve_effects(self.effects)
 
     @property

@@ -29,6 +29,11 @@ class SceneGroundTruth:
             (canonical frame, maps the closed part onto its pose at that frame). Equals the joint's
             transform at ``q[t]`` for an ideal joint; differs from it when a joint effect
             (``axis_sag``, ``drawer_tilt``) makes the real motion non-ideal. ``None`` if unknown.
+        overlap_fraction: of the dynamic recording's depth pixels on the scene (the hand left
+            out; a moving part's points taken back to where it sat closed), the fraction whose
+            point the static recording saw too (within ~2 cm + 2 % of the depth; clean depth,
+            true poses). About 0.9 for a full overlap; ``SceneSpec.static_shift_m`` lowers it.
+            ``None`` if unknown (ground truth written before it was measured).
     """
 
     joints: list[Joint]
@@ -39,3 +44,4 @@ class SceneGroundTruth:
     canonical_from_dynamic_session: np.ndarray
     effects: dict = field(default_factory=dict)
     part_world_from_closed: np.ndarray | None = None
+    overlap_fraction: float | None = None

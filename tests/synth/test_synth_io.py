@@ -80,3 +80,22 @@ def test_missing_ground_truth_is_an_input_error(tmp_path):
         load_ground_truth(tmp_path)
     with pytest.raises(InputError, match="fmt"):
         write_scene(None, tmp_path, fmt="mp4")
+
+
+def test_cli_synth_random_writes_the_seeded_draw(monkeypatch, tmp_path):
+    """``artitwin synth random --seed N`` renders ``random_scene_spec(N)``; ``--list`` names it."""
+    from typer.testing import CliRunner
+
+    import artitwin_core.synth as synth
+    from artitwin.cli import app
+
+    seen = []
+    monkeypatch.setattr(synth, "random_scene_spec", lambda seed: f"spec-{seed}")
+    monkeypatch.setattr(synth, "generate_scene", lambda spec: seen.append(spec) or spec)
+    monkeypatch.setattr(synth, "write_scene", lambda scene, out, fmt: seen.append((out, fmt)))
+    result = CliRunner().invoke(app, ["synth", "random", "--seed", "5", "--out", str(tmp_path / "r"),
+                                      "--format", "nerfstudio"])
+    assert result.exit_code == 0, result.output
+    assert seen == ["spec-5", (tmp_path / "r", "nerfstudio")]
+    listed = CliRunner().invoke(app, ["synth", "--list"])
+    assert "random:" in listed.output
