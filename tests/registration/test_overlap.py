@@ -106,7 +106,10 @@ def test_refusal_can_be_turned_off(small_scene):
 
 
 def test_tilt_within_the_bound_is_found(clean_small_scene):
-    """The dynamic session's gravity 0.3 deg off: the free tilt is significant and kept."""
+    """The dynamic session's gravity 0.3 deg off: the free tilt is significant and kept.
+
+    Measured (noise-free): tilt 0.300 deg (jackknife SE 0.01 deg), 2.3 mm at the furniture; 5.7 mm
+    with ``max_tilt_deg=0`` (gravity kept exactly)."""
     from artitwin_core.geometry import axis_angle_to_matrix, make_se3
 
     s = clean_small_scene
@@ -116,4 +119,4 @@ def test_tilt_within_the_bound_is_found(clean_small_scene):
     r = register_recordings(s.static, dynamic, config=FAST)
     assert r.diagnostics["tilt"]["kept"]
     assert abs(r.tilt_deg - 0.3) < 0.1
-    assert furniture_error(r.canonical_from_session, truth, s.spec.size_m) < 0.005
+    assert furniture_error(r.canonical_from_session, truth, s.spec.size_m) < 0.004  # measured 2.3 mm
