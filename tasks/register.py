@@ -40,7 +40,8 @@ def register_dynamic(static: CaptureArtifact, dynamic: CaptureArtifact, config: 
     Raises :class:`artitwin_core.registration.RegistrationError` (an ``InputError``) when no
     hypothesis is convincing, so that part_masks never runs on a wrong placement."""
     cfg = RegistrationConfig(
-        max_depth_m=config.max_depth_m, yaw_step_deg=config.yaw_step_deg, colored_icp_voxel_m=config.colored_icp_voxel_m
+        max_depth_m=config.max_depth_m, yaw_step_deg=config.yaw_step_deg, colored_icp_voxel_m=config.colored_icp_voxel_m,
+        refuse_unconvincing=config.refuse_unconvincing,
     )
     result = register_recordings(to_core(Capture, static), to_core(Capture, dynamic), gravity=config.gravity, config=cfg)
     final = result.diagnostics["final"]  # the winner's scores once refined
