@@ -6,6 +6,8 @@ space: evidence against, since something would have blocked them), or somewhere 
 observed (outside its views, or behind what it saw: no evidence either way). Counting inliers
 over all dynamic points instead punishes the right answer wherever the two recordings do not
 overlap, and rewards a wrong one that squeezes the dynamic cloud onto whatever surfaces are near.
+The same test runs the other way round for the static points: a dynamic depth ray that passed
+through a static surface also counts against.
 
 The moved part (and the hand) legitimately sit in space the static recording saw empty, but only
 once the part has moved, so the dynamic frames are scored one by one and the early ones (part
