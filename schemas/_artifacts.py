@@ -70,7 +70,7 @@ class Registration(Artifact):
     """Rigid transform that puts the dynamic recording into the canonical frame."""
 
     kind = "registration"
-    schema_version = 2
+    schema_version = 3
 
     canonical_from_session: Array("float64", "4 4") = Field(
         description="Maps points from the dynamic recording's session frame to the canonical frame (metres), [4, 4]."
@@ -84,6 +84,31 @@ class Registration(Artifact):
             "Covariance of the transform's error (w, v): the small motion x -> x + w x x + v (radians, metres, "
             "canonical frame) that would correct it, from a spatial block jackknife, [6, 6]; None = not estimated."
         ),
+    )
+    hypothesis: str = Field(default="", description="Which hypothesis won, e.g. 'identity' or 'yaw sweep 132 deg'.")
+    support: float = Field(
+        default=float("nan"),
+        description="The winner's score: per dynamic frame (early frames weighted more), points on static surfaces minus "
+        "points in space the static recording saw through minus rays through static surfaces, per point; at most 1.",
+    )
+    rival_support: float = Field(
+        default=float("nan"),
+        description="The same score of the best hypothesis placing the dynamic points elsewhere (over 0.5 m RMS away); "
+        "NaN if none.",
+    )
+    overlap: float = Field(
+        default=float("nan"), description="Fraction of the dynamic points that fall where the static recording looked, in [0, 1]."
+    )
+    overlap_inlier_ratio: float = Field(
+        default=float("nan"), description="Of those, the fraction on static surfaces (the rest in its free space), in [0, 1]."
+    )
+    weakest_constraint: float = Field(
+        default=float("nan"),
+        description="How well the matched points pin the yaw-and-translation motion in its weakest direction "
+        "(1/3 for three orthogonal planes in equal shares, 0 for one plane).",
+    )
+    tilt_deg: float = Field(
+        default=0.0, description="Angle between gravity and gravity mapped through canonical_from_session, degrees."
     )
 
 

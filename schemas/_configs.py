@@ -40,6 +40,12 @@ class RegisterConfig(StageConfig):
     max_depth_m: float = Field(default=4.5, gt=0, description="Depth beyond this is ignored, metres.")
     yaw_step_deg: float = Field(default=2.0, gt=0, le=30, description="Step of the exhaustive yaw sweep about gravity, degrees.")
     colored_icp_voxel_m: float = Field(default=0.01, ge=0, description="Voxel of the final coloured ICP, metres (0 skips it).")
+    refuse_unconvincing: bool = Field(
+        default=True,
+        description="Stop with an error naming the scores when no placement of the dynamic recording is convincing "
+        "(too little overlap, space the static recording saw empty, two placements about as good). False registers "
+        "anyway and keeps the scores in the artifact, for inspection: the later stages may then invent parts.",
+    )
 
 
 class PartMasksConfig(StageConfig):

@@ -33,19 +33,34 @@ from tasks._convert import to_artifact, to_core
 from tasks._stage import stage
 
 
-@stage(name="register", version=3, config=RegisterConfig, output=Registration)
+@stage(name="register", version=4, config=RegisterConfig, output=Registration)
 def register_dynamic(static: CaptureArtifact, dynamic: CaptureArtifact, config: RegisterConfig) -> Registration:
-    """``canonical_from_session`` of the dynamic recording (yaw sweep about gravity, ICP, coloured ICP)."""
+    """``canonical_from_session`` of the dynamic recording: hypotheses from the poses and a yaw sweep
+    about gravity, scored against what the static recording saw, gravity-keeping ICP, coloured ICP.
+
+    Raises :class:`artitwin_core.registration.RegistrationError` (an ``InputError``) when no
+    hypothesis is convincing, so that part_masks never runs on a wrong placement."""
     cfg = RegistrationConfig(
-        max_depth_m=config.max_depth_m, yaw_step_deg=config.yaw_step_deg, colored_icp_voxel_m=config.colored_icp_voxel_m
+        max_depth_m=config.max_depth_m, yaw_step_deg=config.yaw_step_deg, colored_icp_voxel_m=config.colored_icp_voxel_m,
+        refuse_unconvincing=config.refuse_unconvincing,
     )
     result = register_recordings(to_core(Capture, static), to_core(Capture, dynamic), gravity=config.gravity, config=cfg)
+    final = result.diagnostics["final"]  # the winner's scores once refined
+    rival = result.diagnostics["verdict"].get("rival_support")
     return Registration(
         canonical_from_session=np.asarray(result.canonical_from_session, dtype=np.float64),
         residual_m=float(result.residual_m),
         inlier_fraction=float(result.inlier_fraction),
-        method="yaw-sweep+tukey-point-to-plane-icp" + ("+colored-icp" if config.colored_icp_voxel_m > 0 else ""),
+        method="pose+yaw-sweep-hypotheses+free-space-scoring+gravity-tukey-icp"
+        + ("+colored-icp" if config.colored_icp_voxel_m > 0 else ""),
         covariance=result.covariance,
+        hypothesis=str(final["name"]),
+        support=float(final["support"]),
+        rival_support=float("nan") if rival is None else float(rival),
+        overlap=float(final["overlap"]),
+        overlap_inlier_ratio=float(final["inlier_ratio"]),
+        weakest_constraint=float(final["constraint"]),
+        tilt_deg=float(result.tilt_deg),
     )
 
 

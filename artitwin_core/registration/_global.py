@@ -19,11 +19,13 @@ from scipy import ndimage
 
 @dataclass(frozen=True)
 class YawCandidate:
-    """One global hypothesis: ``canonical_from_session`` and its correlation score (higher better)."""
+    """One global hypothesis: ``canonical_from_session``, its correlation score (higher better)
+    and which of its yaw's translation peaks it is (0 = the highest)."""
 
     canonical_from_session: np.ndarray
     yaw_deg: float
     score: float
+    peak: int = 0
 
 
 def gravity_basis(gravity) -> np.ndarray:
@@ -78,8 +80,11 @@ def yaw_candidates(
     height_bin_m: float = 0.02,
     num_slabs: int = 4,
     num_candidates: int = 6,
+    peaks_per_yaw: int = 1,
 ) -> list[YawCandidate]:
-    """The best ``num_candidates`` (yaw, translation) hypotheses, distinct in yaw, best first.
+    """(yaw, translation) hypotheses: the ``peaks_per_yaw`` best translations (at least 0.5 m
+    apart) of each of the best ``num_candidates`` yaws (distinct in yaw); the yaws' best peaks
+    first, best yaw first.
 
     Args:
         static_points, static_normals: ``[N, 3]`` static cloud (canonical frame) and unit normals.
@@ -123,8 +128,10 @@ def yaw_candidates(
     origin_d = -centre_cell * cell_m  # the dynamic cloud is centred on the grid's middle cell
 
     yaws = np.deg2rad(np.arange(0.0, 360.0, yaw_step_deg))
-    scores = np.empty(len(yaws))
-    shifts = np.empty((len(yaws), 2))
+    scores = np.empty((len(yaws), peaks_per_yaw))
+    shifts = np.empty((len(yaws), peaks_per_yaw, 2))
+    # Peaks closer than this (cells) are one peak; 0.5 m apart is a different placement.
+    radius = max(1, int(round(0.5 / cell_m)))
     for i, yaw in enumerate(yaws):
         c, sn = np.cos(yaw), np.sin(yaw)
         # Rotation about up in the (e1, e2) plane, right-handed about up: e2 -> e1 for +yaw.
@@ -132,14 +139,20 @@ def yaw_candidates(
         g_d = _grids(d_ab @ rot.T, d_slab, origin_d, shape, cell_m, num_slabs)
         f_d = np.fft.rfft2(g_d, axes=(1, 2))
         corr = np.fft.irfft2((f_s * np.conj(f_d)).sum(0), s=shape)
-        k = np.unravel_index(int(np.argmax(corr)), shape)
-        scores[i] = corr[k] / (norm_s * np.sqrt((g_d**2).sum()) + 1e-12)
-        # Cyclic shift k: static cell j matches dynamic cell j - k.
-        shift = np.array(k, dtype=np.float64)
-        shift = np.where(shift > np.array(shape) / 2, shift - np.array(shape), shift)
-        shifts[i] = shift
+        norm = norm_s * np.sqrt((g_d**2).sum()) + 1e-12
+        # Several peaks per yaw: where the recordings overlap only in part, the highest peak can
+        # be a wall and the floor slid along each other, the right placement the next one.
+        for j in range(peaks_per_yaw):
+            k = np.unravel_index(int(np.argmax(corr)), shape)
+            scores[i, j] = corr[k] / norm
+            # Cyclic shift k: static cell j matches dynamic cell j - k.
+            shift = np.array(k, dtype=np.float64)
+            shifts[i, j] = np.where(shift > np.array(shape) / 2, shift - np.array(shape), shift)
+            rows = np.arange(k[0] - radius, k[0] + radius + 1) % shape[0]
+            cols = np.arange(k[1] - radius, k[1] + radius + 1) % shape[1]
+            corr[np.ix_(rows, cols)] = -np.inf
 
-    order = np.argsort(-scores)
+    order = np.argsort(-scores[:, 0])
     chosen: list[int] = []
     min_sep = np.deg2rad(max(4.0, 3 * yaw_step_deg))
     for i in order:
@@ -149,7 +162,7 @@ def yaw_candidates(
             break
 
     out = []
-    for i in chosen:
+    for i, j in [(i, j) for j in range(peaks_per_yaw) for i in chosen]:
         yaw = yaws[i]
         c, sn = np.cos(yaw), np.sin(yaw)
         rot2 = np.array([[c, sn], [-sn, c]])
@@ -157,7 +170,7 @@ def yaw_candidates(
         # cell j maps onto static cell j + shift: world ab = that + origin_d - s_lo + s_lo...
         # Static grid position of the dynamic grid origin: s_lo + shift * cell; dynamic grid
         # position of a point: rot2 @ (ab - d_centre) - origin_d.
-        t_ab = s_lo + shifts[i] * cell_m - origin_d - rot2 @ d_centre
+        t_ab = s_lo + shifts[i, j] * cell_m - origin_d - rot2 @ d_centre
         rot3 = np.eye(3)
         rot3[np.ix_([0, 2], [0, 2])] = rot2
         trans = np.array([t_ab[0], dz, t_ab[1]])
@@ -167,5 +180,43 @@ def yaw_candidates(
         m = np.eye(4)
         m[:3, :3] = rot_w
         m[:3, 3] = trans_w
-        out.append(YawCandidate(m, float(np.rad2deg(yaw)), float(scores[i])))
+        out.append(YawCandidate(m, float(np.rad2deg(yaw)), float(scores[i, j]), j))
     return out
+
+
+def _heading(rotation: np.ndarray, up: np.ndarray) -> np.ndarray:
+    """Unit horizontal direction a camera (``rotation [3, 3]``, OpenCV axes) looks towards; the
+    image's up direction where it looks straight up or down."""
+    for axis in (rotation[:, 2], -rotation[:, 1]):
+        h = axis - (axis @ up) * up
+        if np.linalg.norm(h) > 0.2:
+            return h / np.linalg.norm(h)
+    return np.cross(up, [1.0, 0.0, 0.0] if abs(up[0]) < 0.9 else [0.0, 0.0, 1.0])
+
+
+def camera_anchor(static_camera: np.ndarray, dynamic_camera: np.ndarray, gravity) -> np.ndarray:
+    """``[4, 4]`` canonical_from_session that puts ``dynamic_camera`` (``[4, 4]`` session
+    world_from_camera) where ``static_camera`` (canonical) is, facing the same horizontal way,
+    keeping gravity: what it means for a new AR session to begin where another one began or ended."""
+    up = gravity_basis(gravity)[1]
+    hs, hd = _heading(static_camera[:3, :3], up), _heading(dynamic_camera[:3, :3], up)
+    angle = float(np.arctan2(up @ np.cross(hd, hs), hd @ hs))
+    c, s = np.cos(angle), np.sin(angle)
+    k = np.array([[0, -up[2], up[1]], [up[2], 0, -up[0]], [-up[1], up[0], 0]])
+    rot = np.eye(3) + s * k + (1 - c) * (k @ k)
+    m = np.eye(4)
+    m[:3, :3] = rot
+    m[:3, 3] = static_camera[:3, 3] - rot @ dynamic_camera[:3, 3]
+    return m
+
+
+def pose_hypotheses(static_poses: np.ndarray, dynamic_poses: np.ndarray, gravity) -> list[tuple[str, np.ndarray]]:
+    """The session offsets the recorded poses suggest, beside the yaw sweep's: the identity (both
+    recordings in one AR session, or sessions that share a world anchor) and the dynamic
+    recording's first camera at the static recording's first or last camera (a new session
+    started where the user stood). ``[T, 4, 4]`` world_from_camera each."""
+    return [
+        ("identity", np.eye(4)),
+        ("first dynamic camera at the first static camera", camera_anchor(static_poses[0], dynamic_poses[0], gravity)),
+        ("first dynamic camera at the last static camera", camera_anchor(static_poses[-1], dynamic_poses[0], gravity)),
+    ]

@@ -1,10 +1,16 @@
 """Register the dynamic recording's session frame onto the canonical (static) frame.
 
-Stages: fuse each recording's depth into a cloud; a global yaw sweep about the shared gravity
-(:mod:`._global`) proposes a few hypotheses; point-to-plane ICP with a Tukey kernel refines each
-at coarse-to-fine voxel sizes and the best fitness wins; a coloured ICP finishes, so texture helps
-where the geometry slides (a long wall). The robust kernel and the weighting of the early dynamic
-frames keep the moved part and the hand from pulling the result.
+Stages: fuse each recording's depth into a cloud; hypotheses come from the recorded poses (the
+identity, a session begun where the other began or ended) and from a global yaw sweep about the
+shared gravity (:mod:`._global`); each is refined by point-to-plane ICP with a Tukey kernel that
+estimates yaw and translation only (:mod:`._gravity_icp`: both sessions measure gravity), and
+scored by where its dynamic points fall in what the static recording saw (:mod:`._evidence`): on
+its surfaces, in space it saw through, or where it never looked. The best-supported hypothesis
+is refined at finer voxels, the finest letting the tilt move within the sensors' few tenths of a
+degree; a coloured ICP finishes, so texture helps where the geometry slides (a long wall). When
+no hypothesis is convincing (too little overlap, space seen empty, a runner-up nearly as good,
+or matches that leave a direction free) :class:`RegistrationError` says so with the numbers,
+rather than handing the later stages a placement that turns the whole room into moving parts.
 """
 
 from __future__ import annotations
@@ -18,8 +24,20 @@ from scipy.spatial import cKDTree
 from artitwin_core._errors import InputError
 from artitwin_core.capture import Capture
 from artitwin_core.registration._clouds import frame_points, fused_cloud
-from artitwin_core.registration._global import yaw_candidates
-from artitwin_core.registration._types import RegistrationConfig, RegistrationResult
+from artitwin_core.registration._evidence import (
+    ScoringData,
+    depth_views,
+    evenly_spaced,
+    score_hypothesis,
+)
+from artitwin_core.registration._global import gravity_basis, pose_hypotheses, yaw_candidates
+from artitwin_core.registration._gravity_icp import PlaneTarget, gravity_icp, match_tilt, tilt_of, tilt_vector
+from artitwin_core.registration._types import (
+    HypothesisScore,
+    RegistrationConfig,
+    RegistrationError,
+    RegistrationResult,
+)
 
 _reg = o3d.pipelines.registration
 
@@ -119,7 +137,12 @@ def register_recordings(
 
     Returns:
         A :class:`RegistrationResult` with the transform, the residual (metres), the inlier
-        fraction and per-stage diagnostics.
+        fraction, the scored hypotheses and per-stage diagnostics.
+
+    Raises:
+        RegistrationError: no hypothesis is convincing (see ``RegistrationConfig.min_overlap``
+            and the tests after it); the message names the numbers and what to do.
+        InputError: malformed recordings or gravity.
     """
     cfg = config or RegistrationConfig()
     _check_capture(static, "static")
@@ -127,6 +150,7 @@ def register_recordings(
     g = np.asarray(gravity, dtype=np.float64)
     if g.shape != (3,) or not np.linalg.norm(g) > 0:
         raise InputError(f"register_recordings: gravity must be a non-zero 3-vector, got {gravity!r}.")
+    up = -g / np.linalg.norm(g)
     diagnostics: dict = {}
     t0 = time.perf_counter()
 
@@ -134,6 +158,7 @@ def register_recordings(
     keep = np.where(np.arange(n_dyn) < max(1, n_dyn // 3), 1.0, 1.0 / max(cfg.early_frame_weight, 1.0))
     common = dict(stride=cfg.pixel_stride, max_depth_m=cfg.max_depth_m, min_confidence=cfg.min_confidence)
     clouds: dict[float, tuple] = {}
+    targets: dict[float, PlaneTarget] = {}
     finest = min(cfg.icp_voxels_m + ((cfg.colored_icp_voxel_m,) if cfg.colored_icp_voxel_m > 0 else ()))
     base_s = fused_cloud(static, range(static.num_frames), voxel_m=finest, **common)
     base_d = fused_cloud(dynamic, range(n_dyn), voxel_m=finest, keep_fraction=keep, **common)
@@ -153,78 +178,104 @@ def register_recordings(
             clouds[voxel] = (s, d)
         return clouds[voxel]
 
+    def target(voxel: float) -> PlaneTarget:
+        if voxel not in targets:
+            s, _ = at(voxel)
+            targets[voxel] = PlaneTarget.of(np.asarray(s.points), np.asarray(s.normals))
+        return targets[voxel]
+
+    def icp(voxel: float, init: np.ndarray):
+        _, d = at(voxel)
+        return gravity_icp(np.asarray(d.points), target(voxel), init, up, max_distance_m=2.5 * voxel, kernel_m=1.5 * voxel)
+
     diagnostics["fuse"] = {"seconds": time.perf_counter() - t0, "static_points": len(base_s.points),
                            "dynamic_points": len(base_d.points), "surface_noise_m": noise}
 
-    # Global: yaw sweep on a coarse cloud, then the first ICP level decides between hypotheses.
+    # Global: hypotheses from the recorded poses and the yaw sweep, each refined (yaw and
+    # translation only) on the coarse clouds and scored against what the static recording saw.
     t1 = time.perf_counter()
     gs, gd = at(cfg.icp_voxels_m[0])
+    view_args = dict(stride=2 * cfg.pixel_stride, max_depth_m=cfg.max_depth_m, min_confidence=cfg.min_confidence)
     cands = yaw_candidates(
         np.asarray(gs.points), np.asarray(gs.normals), np.asarray(gd.points), np.asarray(gd.normals), g,
         yaw_step_deg=cfg.yaw_step_deg, cell_m=cfg.grid_cell_m, height_bin_m=cfg.height_bin_m,
-        num_slabs=cfg.num_slabs, num_candidates=cfg.num_candidates,
+        num_slabs=cfg.num_slabs, num_candidates=cfg.num_candidates, peaks_per_yaw=cfg.peaks_per_yaw,
     )
-    refined = []
-    for c in cands:
-        m = c.canonical_from_session
+    hypotheses = pose_hypotheses(static.world_from_camera, dynamic.world_from_camera, g)
+    hypotheses += [(f"yaw sweep {c.yaw_deg:.0f} deg" + (f", peak {c.peak + 1}" if c.peak else ""), c.canonical_from_session)
+                   for c in cands]
+    scored_frames = evenly_spaced(n_dyn, cfg.score_views)
+    data = ScoringData(
+        # Matched at the third level: normals fine enough for the point-to-plane inlier test.
+        static_surface=target(cfg.icp_voxels_m[min(2, len(cfg.icp_voxels_m) - 1)]),
+        static_views=depth_views(static, cfg.score_views, **view_args),
+        static_points=np.asarray(at(cfg.icp_voxels_m[min(1, len(cfg.icp_voxels_m) - 1)])[0].points),
+        dynamic_points=tuple(frame_points(dynamic, int(t), **view_args)[0] for t in scored_frames),
+        dynamic_views=depth_views(dynamic, cfg.score_views, **view_args),
+        frame_weights=keep[scored_frames],
+    )
+
+    def score(name: str, m: np.ndarray) -> HypothesisScore:
+        return score_hypothesis(name, m, data, up, inlier_m=cfg.inlier_distance_m, margin_m=cfg.free_space_margin_m)
+
+    scored = []
+    for name, m in hypotheses:
         for voxel in cfg.icp_voxels_m[:2]:
-            s, d = at(voxel)
-            r = _icp(d, s, m, voxel)
-            m = r.transformation
-        refined.append((r.fitness, -r.inlier_rmse, m, c))
-    refined.sort(key=lambda x: (round(x[0], 3), x[1]), reverse=True)
-    fitness, _, transform, best = refined[0]
-    static_tree = cKDTree(np.asarray(gs.points))
+            m = icp(voxel, m).transform
+        scored.append(score(name, m))
+    scored.sort(key=lambda h: h.support, reverse=True)
+    distinct = _distinct(scored, np.asarray(gd.points), cfg.distinct_hypothesis_m)
+    rival = _rival(distinct, np.asarray(gd.points), cfg.rival_distance_m)
+    best = distinct[0]
+    transform = best.canonical_from_session
     diagnostics["global"] = {
         "seconds": time.perf_counter() - t1,
-        "yaw_deg": best.yaw_deg,
-        "candidates": [{"yaw_deg": c.yaw_deg, "score": c.score, "fitness_after_icp": f} for f, _, _, c in refined],
+        "chosen": best.name,
+        "yaw_deg": _yaw_deg(transform, up),
+        "hypotheses": [h.as_dict() for h in scored],
     }
+    failed = _refusals(best, rival, cfg)
+    diagnostics["verdict"] = {"failed": list(failed), "rival": rival.name if rival else None,
+                              "rival_support": rival.support if rival else None, "rival_ratio": _ratio(best, rival)}
+    if failed and cfg.refuse_unconvincing:
+        raise RegistrationError(_refusal_message(best, rival, failed), tuple(distinct), tuple(failed))
 
     # Frames in which the part has not moved yet agree with the static scene everywhere; frames
     # with the part open see new surface (the moved part, the inside). Those new surfaces lie
     # next to static ones (a door near its hinge), inside the robust kernel's reach, and bias the
     # fine alignment by a centimetre or two, so the fine stages use the consistent frames only.
     t_sel = time.perf_counter()
+    static_tree = cKDTree(np.asarray(gs.points))
     frames = _consistent_frames(static_tree, dynamic, transform, cfg)
     if len(frames) < n_dyn:
         base_d = fused_cloud(dynamic, frames, voxel_m=finest, **common)
         clouds.clear()
+        targets.clear()
     diagnostics["frames"] = {"seconds": time.perf_counter() - t_sel, "used": [int(t) for t in frames],
                              "dynamic_points": len(base_d.points)}
 
     for voxel in cfg.icp_voxels_m[2:]:
         t2 = time.perf_counter()
-        s, d = at(voxel)
-        r = _icp(d, s, transform, voxel)
-        transform = r.transformation
+        r = icp(voxel, transform)
+        transform = r.transform
         diagnostics[f"icp_{voxel:g}"] = {"seconds": time.perf_counter() - t2, "fitness": r.fitness,
-                                         "inlier_rmse_m": r.inlier_rmse}
+                                         "inlier_rmse_m": r.inlier_rmse, "iterations": r.iterations}
+    if cfg.max_tilt_deg > 0:
+        t2 = time.perf_counter()
+        voxel = cfg.icp_voxels_m[-1]
+        transform, diagnostics["tilt"] = _tilt(np.asarray(at(voxel)[1].points), target(voxel), transform, up, voxel, cfg)
+        diagnostics["tilt"]["seconds"] = time.perf_counter() - t2
 
     if cfg.colored_icp_voxel_m > 0:
         t3 = time.perf_counter()
-        voxel = cfg.colored_icp_voxel_m
-        s, d = at(voxel)
-        est = _reg.TransformationEstimationForColoredICP(lambda_geometric=cfg.colored_icp_lambda_geometric,
-                                                        kernel=_reg.TukeyLoss(k=1.5 * voxel))
-        crit = _reg.ICPConvergenceCriteria(relative_fitness=1e-7, relative_rmse=1e-7, max_iteration=30)
-        try:
-            r = _reg.registration_colored_icp(_normalised_colours(d), _normalised_colours(s), 2.0 * voxel,
-                                              transform, est, crit)
-            step = np.linalg.inv(transform) @ r.transformation
-            # Accept only a small correction: coloured ICP refines, it must not jump basins.
-            if np.linalg.norm(step[:3, 3]) < 2 * voxel and np.arccos(np.clip((np.trace(step[:3, :3]) - 1) / 2, -1, 1)) < np.deg2rad(1.0):
-                transform = r.transformation
-                accepted = True
-            else:
-                accepted = False
-            diagnostics["colored"] = {"seconds": time.perf_counter() - t3, "fitness": r.fitness,
-                                      "inlier_rmse_m": r.inlier_rmse, "accepted": accepted}
-        except RuntimeError as err:  # open3d raises when too few correspondences carry colour
-            diagnostics["colored"] = {"seconds": time.perf_counter() - t3, "error": str(err), "accepted": False}
+        transform, diagnostics["colored"] = _colored_icp(transform, at, score, up, cfg)
+        diagnostics["colored"]["seconds"] = time.perf_counter() - t3
 
     s, d = at(finest)
     residual, inliers = _point_to_plane_stats(d, s, transform, cfg.inlier_distance_m)
+    final = score(best.name, transform)
+    tilt_deg = float(np.rad2deg(tilt_of(transform, up)))
+    diagnostics["final"] = {**final.as_dict(), "tilt_deg": tilt_deg, "yaw_deg": _yaw_deg(transform, up)}
     covariance = None
     if cfg.uncertainty_blocks >= 3:
         t4 = time.perf_counter()
@@ -237,6 +288,165 @@ def register_recordings(
         inlier_fraction=inliers,
         diagnostics=diagnostics,
         covariance=covariance,
+        hypotheses=tuple(distinct),
+        tilt_deg=tilt_deg,
+    )
+
+
+def _tilt(points: np.ndarray, target: PlaneTarget, transform: np.ndarray, up: np.ndarray, voxel: float,
+          cfg: RegistrationConfig) -> tuple[np.ndarray, dict]:
+    """The finest ICP again with the tilt free (clamped to ``max_tilt_deg``), kept only if the
+    data show a tilt: where the recordings overlap in part, the tilt is poorly pinned and the
+    free fit tilts by the misfit (measured 0.07-0.3 deg on synthetic scenes that have none). The
+    tilt is kept when its squared Mahalanobis distance, against its spatial block-jackknife
+    covariance (``tilt_test_blocks`` blocks of the dynamic cloud, each left out in turn), exceeds
+    ``tilt_test_threshold``."""
+    def fit(pts: np.ndarray, start: np.ndarray) -> np.ndarray:
+        return gravity_icp(pts, target, start, up, max_distance_m=2.5 * voxel, kernel_m=1.5 * voxel,
+                           max_tilt_rad=np.deg2rad(cfg.max_tilt_deg)).transform
+
+    tilted = fit(points, transform)
+    tau = tilt_vector(tilted, up)
+    info = {"estimate_deg": float(np.rad2deg(np.arcsin(min(np.linalg.norm(tau), 1.0)))), "kept": True}
+    if cfg.tilt_test_blocks >= 3:
+        moved = points @ transform[:3, :3].T + transform[:3, 3]
+        label = _spatial_blocks(moved, cfg.tilt_test_blocks)
+        taus = np.stack([tilt_vector(fit(points[label != k], tilted), up) for k in range(cfg.tilt_test_blocks)
+                         if np.any(label == k)])
+        dev = taus - taus.mean(0)
+        cov = (len(taus) - 1) / len(taus) * dev.T @ dev + np.eye(3) * 1e-12
+        # tau is perpendicular to up: test it in that plane (two degrees of freedom).
+        basis = gravity_basis(-up)[[0, 2]]
+        t2, c2 = basis @ tau, basis @ cov @ basis.T
+        info["mahalanobis_sq"] = float(t2 @ np.linalg.solve(c2, t2))
+        info["se_deg"] = float(np.rad2deg(np.sqrt(np.trace(c2))))
+        info["kept"] = info["mahalanobis_sq"] > cfg.tilt_test_threshold
+    return (tilted if info["kept"] else transform), info
+
+
+def _spatial_blocks(points: np.ndarray, blocks: int) -> np.ndarray:
+    """``[N]`` block label of each of ``points [N, 3]``: k-means (10 rounds, fixed seed)."""
+    rng = np.random.default_rng(0)
+    centres = points[rng.choice(len(points), blocks, replace=False)]
+    label = np.zeros(len(points), np.int64)
+    for _ in range(10):
+        label = cKDTree(centres).query(points)[1]
+        centres = np.stack([points[label == k].mean(0) if np.any(label == k) else centres[k] for k in range(blocks)])
+    return label
+
+
+def _colored_icp(transform: np.ndarray, at, score, up: np.ndarray, cfg: RegistrationConfig) -> tuple[np.ndarray, dict]:
+    """Coloured ICP at twice ``cfg.colored_icp_voxel_m``, then at it, from ``transform``.
+
+    Where the recordings overlap only in part, the geometry in common often pins everything but
+    a slide along the furniture's front (measured 1-4 cm off after the point-to-plane stages),
+    and only the texture pins that; the coarser level widens coloured ICP's reach to it. The
+    result is kept if it moved less than ``colored_icp_max_step_m`` and 1 degree (a refinement,
+    not a jump to another basin) and its geometric support did not drop by more than 0.02. It
+    estimates 6 DOF; its tilt is reset to the one it started from (about the dynamic cloud's
+    centre), which the tilt test decided.
+    """
+    moved = transform
+    try:
+        for voxel in (2 * cfg.colored_icp_voxel_m, cfg.colored_icp_voxel_m):
+            s, d = at(voxel)
+            est = _reg.TransformationEstimationForColoredICP(lambda_geometric=cfg.colored_icp_lambda_geometric,
+                                                            kernel=_reg.TukeyLoss(k=1.5 * voxel))
+            crit = _reg.ICPConvergenceCriteria(relative_fitness=1e-7, relative_rmse=1e-7, max_iteration=30)
+            r = _reg.registration_colored_icp(_normalised_colours(d), _normalised_colours(s), 2.0 * voxel,
+                                              moved, est, crit)
+            moved = np.asarray(r.transformation)
+    except RuntimeError as err:  # open3d raises when too few correspondences carry colour
+        return transform, {"error": str(err), "accepted": False}
+    centre = np.asarray(d.points).mean(0) @ moved[:3, :3].T + moved[:3, 3]
+    moved = match_tilt(moved, transform, up, centre)
+    step = np.linalg.inv(transform) @ moved
+    before, after = score("before", transform).support, score("after", moved).support
+    accepted = bool(np.linalg.norm(step[:3, 3]) < cfg.colored_icp_max_step_m and _angle(step[:3, :3]) < np.deg2rad(1.0)
+                    and after >= before - 0.02)
+    info = {"fitness": r.fitness, "inlier_rmse_m": r.inlier_rmse, "accepted": accepted,
+            "step_m": float(np.linalg.norm(step[:3, 3])), "support_before": before, "support_after": after}
+    return (moved if accepted else transform), info
+
+
+def _angle(rotation: np.ndarray) -> float:
+    return float(np.arccos(np.clip((np.trace(rotation) - 1) / 2, -1, 1)))
+
+
+def _yaw_deg(transform: np.ndarray, up: np.ndarray) -> float:
+    """Yaw (degrees) of ``transform`` about ``up``: how it turns a horizontal direction."""
+    e1, _, e2 = gravity_basis(-up)  # e2 = e1 x up, so a yaw of +90 deg takes e1 to -e2
+    v = transform[:3, :3] @ e1
+    return float(np.rad2deg(np.arctan2(-(v @ e2), v @ e1)))
+
+
+def _distinct(scored: list[HypothesisScore], points: np.ndarray, min_m: float) -> list[HypothesisScore]:
+    """``scored`` (best first) without those within ``min_m`` RMS of a better one."""
+    out: list[HypothesisScore] = []
+    placed: list[np.ndarray] = []
+    for h in scored:
+        m = h.canonical_from_session
+        moved = points @ m[:3, :3].T + m[:3, 3]
+        if all(np.sqrt(np.mean(np.sum((moved - other) ** 2, axis=1))) > min_m for other in placed):
+            out.append(h)
+            placed.append(moved)
+    return out
+
+
+def _rival(distinct: list[HypothesisScore], points: np.ndarray, min_m: float) -> HypothesisScore | None:
+    """The best of ``distinct`` (best first) that places ``points`` more than ``min_m`` RMS from
+    where the best one does: a different reading of the scene, not the same one slid a little."""
+    def placed(h: HypothesisScore) -> np.ndarray:
+        return points @ h.canonical_from_session[:3, :3].T + h.canonical_from_session[:3, 3]
+
+    first = placed(distinct[0])
+    for h in distinct[1:]:
+        if np.sqrt(np.mean(np.sum((placed(h) - first) ** 2, axis=1))) > min_m:
+            return h
+    return None
+
+
+def _ratio(best: HypothesisScore, rival: HypothesisScore | None) -> float:
+    """The rival's support as a fraction of the best's (0 without a rival, 1 if the best has none)."""
+    if rival is None:
+        return 0.0
+    return max(rival.support, 0.0) / best.support if best.support > 0 else 1.0
+
+
+def _refusals(best: HypothesisScore, rival: HypothesisScore | None, cfg: RegistrationConfig) -> list[str]:
+    """The refusal tests the best hypothesis fails, each a sentence with its numbers."""
+    failed = []
+    if best.overlap < cfg.min_overlap:
+        failed.append(f"only {100 * best.overlap:.0f}% of the dynamic points fall where the static recording looked "
+                      f"(min_overlap {100 * cfg.min_overlap:.0f}%)")
+    if best.inlier_ratio < cfg.min_inlier_ratio:
+        failed.append(f"of those, only {100 * best.inlier_ratio:.0f}% lie on its surfaces and the rest in space it saw "
+                      f"empty (min_inlier_ratio {100 * cfg.min_inlier_ratio:.0f}%)")
+    ratio = _ratio(best, rival)
+    if rival is not None and ratio >= cfg.max_rival_ratio:
+        failed.append(f"a placement more than {cfg.rival_distance_m:g} m away, '{rival.name}' (support "
+                      f"{rival.support:.3f}), explains the data {100 * ratio:.0f}% as well "
+                      f"(max_rival_ratio {100 * cfg.max_rival_ratio:.0f}%)")
+    if best.constraint < cfg.min_constraint:
+        failed.append(f"its matched points pin the weakest direction to {best.constraint:.4f} "
+                      f"(min_constraint {cfg.min_constraint}): the overlap is one or two planes and could slide")
+    return failed
+
+
+def _refusal_message(best: HypothesisScore, rival: HypothesisScore | None, failed: list[str]) -> str:
+    other = (f"; the best placement more than that away, '{rival.name}': support {rival.support:.3f}, overlap "
+             f"{100 * rival.overlap:.0f}%, inliers {100 * rival.inlier_ratio:.0f}%") if rival is not None else ""
+    return (
+        "register: no placement of the dynamic recording in the static one is convincing, so registration stops "
+        "here rather than pass a wrong one on (every surface it misplaces would become a moving part). "
+        f"Best hypothesis '{best.name}': support {best.support:.3f} (points on static surfaces minus points in "
+        f"space the static recording saw empty, per dynamic point), overlap {100 * best.overlap:.0f}%, inliers "
+        f"{100 * best.inlier_ratio:.0f}% of the overlap, weakest constraint {best.constraint:.4f}{other}. "
+        f"Failed: {'; '.join(failed)}. "
+        "What to do: check that both recordings show the same room and the same furniture; record the dynamic "
+        "recording so that at least a third of what it sees was also covered by the static sweep (start it from "
+        "where the static one looked at the furniture, with some of the surroundings in view: a wall corner, the "
+        "floor, other furniture), or re-record the static sweep to cover the dynamic recording's view."
     )
 
 
@@ -251,12 +461,7 @@ def _block_jackknife(dynamic_cloud, static_cloud, transform: np.ndarray, voxel: 
     pts = np.asarray(dynamic_cloud.points) @ transform[:3, :3].T + transform[:3, 3]
     if len(pts) < 50 * blocks:
         return None
-    rng = np.random.default_rng(0)
-    centres = pts[rng.choice(len(pts), blocks, replace=False)]
-    label = np.zeros(len(pts), np.int64)
-    for _ in range(10):
-        label = cKDTree(centres).query(pts)[1]
-        centres = np.stack([pts[label == k].mean(0) if np.any(label == k) else centres[k] for k in range(blocks)])
+    label = _spatial_blocks(pts, blocks)
     inv = np.linalg.inv(transform)
     params = []
     for k in range(blocks):

@@ -6,6 +6,8 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from artitwin_core._errors import InputError
+
 
 @dataclass(frozen=True)
 class RegistrationConfig:
@@ -22,9 +24,14 @@ class RegistrationConfig:
         grid_cell_m: cell size of the top-down occupancy grids correlated for translation.
         height_bin_m: bin size of the height histograms correlated for the vertical offset.
         num_slabs: height slabs (channels) of the top-down grids.
-        num_candidates: best (yaw, translation) hypotheses refined by ICP.
+        num_candidates: best yaws of the sweep whose translations are refined by ICP.
+        peaks_per_yaw: translations (correlation peaks at least 0.5 m apart) tried per yaw:
+            with partial overlap the highest peak can be a wall and floor slid along each other.
         icp_voxels_m: coarse-to-fine voxel sizes of the point-to-plane ICP (Tukey kernel).
-        colored_icp_voxel_m: voxel size of the final coloured ICP, or 0 to skip it.
+        colored_icp_voxel_m: voxel size of the final coloured ICP (run at twice this, then at
+            this), or 0 to skip it.
+        colored_icp_max_step_m: the coloured ICP's result is kept only if it moved the
+            registration less than this (metres) and 1 degree.
         colored_icp_lambda_geometric: weight of the point-to-plane term in the coloured ICP (the
             colour term gets ``1 - lambda``). Open3D applies one robust kernel (a Tukey of
             ``1.5 * colored_icp_voxel_m``, metres) to both residuals, so this also sets which
@@ -48,6 +55,43 @@ class RegistrationConfig:
             blocks of the dynamic cloud (each left out in turn, the finest ICP rerun); 0 skips
             it. Blocks, not points: the misfit of one surface (a wall slightly curved by the
             depth noise model, a door's edge) is shared by its points.
+        max_tilt_deg: the two sessions' gravity may disagree by at most this (degrees): every
+            ICP estimates yaw about gravity and translation only; then the finest is rerun with
+            the tilt free, clamped to this bound, and its tilt kept only if significant (see
+            ``tilt_test_blocks``); 0 keeps gravity exactly. ARKit's gravity is good to a few
+            tenths of a degree.
+        tilt_test_blocks: the free tilt is kept when it exceeds its block-jackknife uncertainty
+            over this many spatial blocks of the dynamic cloud (see ``tilt_test_threshold``);
+            below 3, it is always kept.
+        tilt_test_threshold: the squared Mahalanobis distance of the tilt (two degrees of
+            freedom) above which it is kept. Far above chi-square's 5.99: the blocks share the
+            systematic misfit (a slightly curved wall, a door's edge), so the jackknife
+            underestimates the uncertainty; synthetic scenes without tilt gave spurious tilts of
+            0.07-0.3 deg at 6-46, and a real 0.3 deg tilt 113 (noisy) to 12000 (noise-free).
+        score_views: hypotheses are scored with this many frames (evenly spaced) of each
+            recording: the static ones' depth defines the space it saw through; the dynamic
+            ones' points are tested, the early ones weighted as in ``early_frame_weight``.
+        free_space_margin_m: a dynamic point counts against a hypothesis when a static depth ray
+            passed more than this beyond it, and so does a dynamic ray that passed this far
+            beyond a static point (metres): depth noise and edges stay within it.
+        distinct_hypothesis_m: two refined hypotheses that place the dynamic points within this
+            RMS distance of each other (metres) are the same answer (the result lists one).
+        min_overlap: refuse when, under the best hypothesis, fewer than this fraction of the
+            dynamic points fall where the static recording looked (on its surfaces or in the
+            space it saw through).
+        min_inlier_ratio: refuse when, of the dynamic points where the static recording looked,
+            fewer than this fraction lie on its surfaces (the rest sit in space it saw empty:
+            the moved part and the hand, or a wrong placement).
+        rival_distance_m: the rival is the best hypothesis that places the dynamic points more
+            than this RMS distance (metres) from the best one: another reading of the scene, not
+            the best one slid a little along a wall.
+        max_rival_ratio: refuse when the rival's support is at least this fraction of the
+            best's (two different placements explain the data about equally well).
+        min_constraint: refuse when the best hypothesis' matched points pin its weakest
+            direction less than this (see ``weakest_constraint``: 1/3 for three orthogonal
+            planes in equal shares, 0 for one plane): the dynamic recording could slide.
+        refuse_unconvincing: raise :class:`RegistrationError` when a refusal test fails; False
+            returns the best hypothesis anyway (its scores are in the result), for inspection.
     """
 
     max_depth_m: float = 4.5
@@ -59,15 +103,72 @@ class RegistrationConfig:
     height_bin_m: float = 0.02
     num_slabs: int = 4
     num_candidates: int = 6
+    peaks_per_yaw: int = 2
     icp_voxels_m: tuple[float, ...] = (0.08, 0.04, 0.02, 0.01)
     colored_icp_voxel_m: float = 0.01
+    colored_icp_max_step_m: float = 0.05
     colored_icp_lambda_geometric: float = 0.99
     inlier_distance_m: float = 0.02
     consistent_frame_margin: float = 0.03
     min_consistent_frames: int = 3
     normal_noise_radii: float = 6.0
     uncertainty_blocks: int = 10
+    max_tilt_deg: float = 0.5
+    tilt_test_blocks: int = 6
+    tilt_test_threshold: float = 60.0
+    score_views: int = 24
+    free_space_margin_m: float = 0.05
+    distinct_hypothesis_m: float = 0.1
+    min_overlap: float = 0.3
+    min_inlier_ratio: float = 0.8
+    rival_distance_m: float = 0.5
+    max_rival_ratio: float = 0.7
+    min_constraint: float = 0.003
+    refuse_unconvincing: bool = True
 
+
+@dataclass(frozen=True)
+class HypothesisScore:
+    """One refined registration hypothesis and the evidence for it.
+
+    Attributes:
+        name: where it came from (``"identity"``, ``"yaw sweep 132 deg"``, ...).
+        canonical_from_session: ``[4, 4]`` after the yaw-and-translation ICP.
+        support: the ranking score, at most 1: per scored dynamic frame, (points on static
+            surfaces - points in space the static recording saw through - pixels whose ray
+            passed through a static surface) / points; their mean, the early frames weighted as
+            in ``RegistrationConfig.early_frame_weight``.
+        overlap: fraction of the dynamic points that fall where the static recording looked
+            (on its surfaces or in space it saw through).
+        inlier_ratio: of those, the fraction on its surfaces (frames weighted as for support).
+        constraint: how well the dynamic points on static surfaces pin the motion in its
+            weakest direction (``weakest_constraint``).
+    """
+
+    name: str
+    canonical_from_session: np.ndarray
+    support: float
+    overlap: float
+    inlier_ratio: float
+    constraint: float
+
+    def as_dict(self) -> dict:
+        return {"name": self.name, "support": self.support, "overlap": self.overlap,
+                "inlier_ratio": self.inlier_ratio, "constraint": self.constraint}
+
+
+class RegistrationError(InputError):
+    """No registration hypothesis is convincing: the recordings do not overlap enough, or the
+    overlap admits two placements. ``hypotheses`` holds the scored hypotheses (best first) and
+    ``failed`` the refusal tests that failed, each a sentence with its numbers."""
+
+    def __init__(self, message: str, hypotheses: tuple[HypothesisScore, ...] = (), failed: tuple[str, ...] = ()):
+        super().__init__(message)
+        self.hypotheses = hypotheses
+        self.failed = failed
+
+    def __reduce__(self):  # keep the scores through pickling (process pools, Prefect results)
+        return (type(self), (str(self), self.hypotheses, self.failed))
 
 @dataclass(frozen=True)
 class RegistrationResult:
@@ -84,9 +185,13 @@ class RegistrationResult:
             it, from a spatial block jackknife; ``None`` where not estimated. The error at a
             point ``p`` has covariance ``J C J^T`` with ``J = [-[p]_x, I]``.
         diagnostics: per stage (``"fuse"``, ``"global"``, ``"frames"``, ``"icp_0.02"``, ...,
-            ``"colored"``) a dict with
-            its fitness, inlier RMSE (metres), seconds, and for the global stage the chosen yaw
-            (degrees) and score of each refined candidate.
+            ``"colored"``, ``"final"``) a dict with its fitness, inlier RMSE (metres), seconds;
+            the global stage lists every refined hypothesis with its scores, and ``"final"``
+            the chosen one's scores at the finest level and its tilt.
+        hypotheses: the distinct refined hypotheses, best first (the first is the one refined
+            into ``canonical_from_session``; its scores are from before the fine stages).
+        tilt_deg: angle (degrees) between gravity and gravity mapped through
+            ``canonical_from_session``: the sessions' gravity disagreement it assumes.
     """
 
     canonical_from_session: np.ndarray
@@ -94,3 +199,5 @@ class RegistrationResult:
     inlier_fraction: float
     diagnostics: dict = field(default_factory=dict)
     covariance: np.ndarray | None = None
+    hypotheses: tuple[HypothesisScore, ...] = ()
+    tilt_deg: float = 0.0

@@ -1,0 +1,240 @@
+"""Overlap-aware evidence for a registration hypothesis, from what the static recording saw.
+
+Under a hypothesis, each dynamic point falls in one of three places of the static recording's
+world: on a surface it measured (evidence for), in space its depth rays passed through (free
+space: evidence against, since something would have blocked them), or somewhere it never
+observed (outside its views, or behind what it saw: no evidence either way). Counting inliers
+over all dynamic points instead punishes the right answer wherever the two recordings do not
+overlap, and rewards a wrong one that squeezes the dynamic cloud onto whatever surfaces are near.
+The same test runs the other way round for the static points: a dynamic depth ray that passed
+through a static surface also counts against.
+
+The moved part (and the hand) legitimately sit in space the static recording saw empty, but only
+once the part has moved, so the dynamic frames are scored one by one and the early ones (part
+most likely still closed) weigh more; a wrong placement conflicts in the early frames too.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+from scipy import ndimage
+
+from artitwin_core.capture import Capture
+from artitwin_core.registration._gravity_icp import PlaneTarget
+from artitwin_core.registration._types import HypothesisScore
+
+
+@dataclass(frozen=True)
+class DepthViews:
+    """Depth maps of a subset of a recording's frames, for free-space tests.
+
+    Attributes:
+        camera_from_world: ``[K, 4, 4]`` world-to-camera transforms (OpenCV axes).
+        intrinsics: ``[K, 4]`` ``(fx, fy, cx, cy)`` at the stored (strided) depth resolution.
+        near_depth: ``[K, h, w]`` metres: the nearest depth within one pixel (NaN = no
+            measurement or beyond the depth limit), so a point beside a depth edge is never free.
+    """
+
+    camera_from_world: np.ndarray
+    intrinsics: np.ndarray
+    near_depth: np.ndarray
+
+
+def evenly_spaced(num_frames: int, count: int) -> np.ndarray:
+    """``[K]`` sorted frame indices, at most ``count`` of ``num_frames``, first and last included."""
+    return np.unique(np.linspace(0, num_frames - 1, max(1, min(count, num_frames))).round().astype(np.int64))
+
+
+def depth_views(capture: Capture, num_views: int, *, stride: int, max_depth_m: float, min_confidence: int) -> DepthViews:
+    """Up to ``num_views`` evenly spaced frames of ``capture``, depth subsampled by ``stride``."""
+    frames = evenly_spaced(capture.num_frames, num_views)
+    depth = capture.depth[frames][:, ::stride, ::stride].astype(np.float32, copy=True)
+    depth[~(depth < max_depth_m)] = np.nan
+    if capture.confidence is not None and min_confidence > 0:
+        depth[capture.confidence[frames][:, ::stride, ::stride] < min_confidence] = np.nan
+    near = ndimage.minimum_filter(np.where(np.isfinite(depth), depth, np.inf), size=(1, 3, 3))
+    near[~np.isfinite(near)] = np.nan
+    fx, fy, cx, cy = capture.depth_intrinsics[frames].T
+    # Pixel (u, v) of the strided map is pixel (u * s, v * s) of the full one.
+    intr = np.stack([fx / stride, fy / stride, cx / stride, cy / stride], -1)
+    return DepthViews(np.linalg.inv(capture.world_from_camera[frames]), intr, near.astype(np.float32))
+
+
+@dataclass(frozen=True)
+class Evidence:
+    """How one recording's points sit in the other recording's world under one hypothesis.
+
+    Attributes:
+        agree: points on the other recording's surface (within the inlier distance).
+        conflict: points in space the other recording saw through (free space).
+        total: points tested.
+        agree_mask: ``[N]`` bool, which points agree.
+    """
+
+    agree: int
+    conflict: int
+    total: int
+    agree_mask: np.ndarray
+
+    @property
+    def overlap(self) -> float:
+        """Fraction of the points that fall where the other recording looked."""
+        return (self.agree + self.conflict) / max(self.total, 1)
+
+    @property
+    def inlier_ratio(self) -> float:
+        """Of the points where the other recording looked, the fraction on its surfaces."""
+        return self.agree / max(self.agree + self.conflict, 1)
+
+    @property
+    def support(self) -> float:
+        """Evidence for minus evidence against, per point tested."""
+        return (self.agree - self.conflict) / max(self.total, 1)
+
+
+def free_space_hits(points: np.ndarray, views: DepthViews, margin_m: float, near_m: float = 0.1) -> np.ndarray:
+    """``[N]`` number of views whose depth rays passed more than ``margin_m`` beyond each point
+    ``points [N, 3]`` (in the views' world frame): the point sits in space those views saw empty."""
+    hits = np.zeros(len(points), np.int32)
+    _, h, w = views.near_depth.shape
+    for i in range(len(views.camera_from_world)):
+        m = views.camera_from_world[i]
+        pc = points @ m[:3, :3].T + m[:3, 3]
+        z = pc[:, 2]
+        front = z > near_m
+        fx, fy, cx, cy = views.intrinsics[i]
+        zs = np.where(front, z, 1.0)
+        u = np.rint(pc[:, 0] / zs * fx + cx).astype(np.int64)
+        v = np.rint(pc[:, 1] / zs * fy + cy).astype(np.int64)
+        inside = front & (u >= 0) & (u < w) & (v >= 0) & (v < h)
+        near = np.full(len(points), np.nan, np.float32)
+        near[inside] = views.near_depth[i][v[inside], u[inside]]
+        hits += (np.isfinite(near) & (z < near - margin_m)).astype(np.int32)
+    return hits
+
+
+def seen_through(points: np.ndarray, views: DepthViews, i: int, margin_m: float, near_m: float = 0.1) -> int:
+    """Pixels of view ``i`` whose depth ray passed more than ``margin_m`` beyond the nearest of
+    ``points [N, 3]`` (in the view's world frame) that projects there: the view saw through a
+    surface of the other recording (a z-buffer of the points, compared with the nearest depth)."""
+    _, h, w = views.near_depth.shape
+    m = views.camera_from_world[i]
+    pc = points @ m[:3, :3].T + m[:3, 3]
+    z = pc[:, 2]
+    front = z > near_m
+    fx, fy, cx, cy = views.intrinsics[i]
+    zs = np.where(front, z, 1.0)
+    u = np.rint(pc[:, 0] / zs * fx + cx).astype(np.int64)
+    v = np.rint(pc[:, 1] / zs * fy + cy).astype(np.int64)
+    inside = front & (u >= 0) & (u < w) & (v >= 0) & (v < h)
+    zbuf = np.full(h * w, np.inf)
+    np.minimum.at(zbuf, v[inside] * w + u[inside], z[inside])
+    near = views.near_depth[i].reshape(-1)
+    return int(np.sum(np.isfinite(near) & (zbuf < near - margin_m)))
+
+
+def evidence(
+    points: np.ndarray,
+    target: PlaneTarget,
+    views: DepthViews,
+    *,
+    inlier_m: float,
+    margin_m: float,
+) -> Evidence:
+    """Classify ``points [N, 3]`` (already in the other recording's world frame) against its
+    surface ``target`` (point-to-plane within ``inlier_m``, nearest neighbour within
+    ``3 * inlier_m``) and its views' free space (``margin_m`` in front of the measured depth)."""
+    dist, idx = target.tree.query(points, distance_upper_bound=3 * inlier_m)
+    ok = np.isfinite(dist)
+    agree = np.zeros(len(points), bool)
+    plane = np.einsum("ij,ij->i", points[ok] - target.points[idx[ok]], target.normals[idx[ok]])
+    agree[np.nonzero(ok)[0][np.abs(plane) < inlier_m]] = True
+    conflict = ~agree & (free_space_hits(points, views, margin_m) > 0)
+    return Evidence(int(agree.sum()), int(conflict.sum()), len(points), agree)
+
+
+def weakest_constraint(points: np.ndarray, normals: np.ndarray, up: np.ndarray) -> tuple[float, np.ndarray]:
+    """How well matched points pin a yaw-and-translation motion, in its weakest direction.
+
+    Each point on a surface with normal ``n`` measures the motion along ``n`` only, so a set of
+    matches on one plane (a floor, or a floor and one wall) leaves a direction free: the
+    recording can slide along it. Returns the smallest eigenvalue of the per-point information
+    matrix of ``(yaw * r, tx, ty, tz)`` (``r`` the points' RMS horizontal distance from their
+    centroid, so all four are lengths): 1/3 for three orthogonal planes in equal shares, 0 for
+    a plane, and its direction ``[4]``.
+    """
+    if len(points) < 10:
+        return 0.0, np.zeros(4)
+    up = np.asarray(up, dtype=np.float64)
+    rel = points - points.mean(0)
+    horiz = rel - np.outer(rel @ up, up)
+    radius = max(float(np.sqrt(np.mean(np.sum(horiz**2, axis=1)))), 1e-3)
+    jac = np.hstack([(np.cross(rel, normals) @ up)[:, None] / radius, normals])
+    vals, vecs = np.linalg.eigh(jac.T @ jac / len(points))
+    return float(vals[0]), vecs[:, 0]
+
+
+@dataclass(frozen=True)
+class ScoringData:
+    """What hypotheses are scored against.
+
+    Attributes:
+        static_surface: the static surface (canonical frame) the dynamic points are matched to.
+        static_views: the static depth maps whose free space the dynamic points are tested in.
+        static_points: ``[N, 3]`` static points (canonical frame) tested against the dynamic views.
+        dynamic_points: per scored dynamic frame, its points ``[M_i, 3]`` (session frame), one per
+            valid pixel of ``dynamic_views``.
+        dynamic_views: those frames' depth maps.
+        frame_weights: ``[len(dynamic_points)]`` how much each of those frames counts.
+    """
+
+    static_surface: PlaneTarget
+    static_views: DepthViews
+    static_points: np.ndarray
+    dynamic_points: tuple[np.ndarray, ...]
+    dynamic_views: DepthViews
+    frame_weights: np.ndarray
+
+
+def score_hypothesis(
+    name: str, transform: np.ndarray, data: ScoringData, up: np.ndarray, *, inlier_m: float, margin_m: float
+) -> HypothesisScore:
+    """Evidence for ``transform`` (canonical_from_session), frame by frame of the dynamic points.
+
+    Per frame, support = (points on static surfaces - points in static free space - pixels
+    whose ray passed through a static surface) / points; the last term is the same test the
+    other way round, and catches a wrong placement that lays the dynamic recording's walls and
+    floor onto static ones while the rest of it lands where the static recording never looked
+    (its rays then cross the static furniture). The hypothesis' support is the weighted mean;
+    its inlier ratio the weighted pooled share of agreeing points among those where the static
+    recording looked; its overlap the unweighted share of dynamic points where it looked.
+    """
+    w = np.asarray(data.frame_weights, dtype=np.float64)
+    inverse = np.linalg.inv(transform)
+    static_in_session = data.static_points @ inverse[:3, :3].T + inverse[:3, 3]
+    agree = conflict = total = 0
+    w_agree = w_seen = 0.0
+    frame_support = np.zeros(len(data.dynamic_points))
+    agreed = []
+    for i, pts in enumerate(data.dynamic_points):
+        moved = pts @ transform[:3, :3].T + transform[:3, 3]
+        ev = evidence(moved, data.static_surface, data.static_views, inlier_m=inlier_m, margin_m=margin_m)
+        crossed = seen_through(static_in_session, data.dynamic_views, i, margin_m)
+        frame_support[i] = (ev.agree - ev.conflict - crossed) / max(ev.total, 1)
+        agree, conflict, total = agree + ev.agree, conflict + ev.conflict, total + ev.total
+        w_agree += w[i] * ev.agree
+        w_seen += w[i] * (ev.agree + ev.conflict)
+        agreed.append(moved[ev.agree_mask])
+    points = np.concatenate(agreed) if agreed else np.zeros((0, 3))
+    _, idx = data.static_surface.tree.query(points)
+    constraint, _ = weakest_constraint(points, data.static_surface.normals[idx], up)
+    return HypothesisScore(
+        name=name,
+        canonical_from_session=np.asarray(transform, dtype=np.float64),
+        support=float(np.sum(w * frame_support) / max(np.sum(w), 1e-12)),
+        overlap=(agree + conflict) / max(total, 1),
+        inlier_ratio=w_agree / max(w_seen, 1e-12),
+        constraint=constraint,
+    )
