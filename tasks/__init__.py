@@ -13,6 +13,7 @@ from tasks.drift import correct_pose_drift, fit_session_drift, fit_static_drift
 from tasks.export import export_twin
 from tasks.frame_poses import correct_frame_poses, fit_frame_poses
 from tasks.ingest import check_capture, ingest_recording
+from tasks.pose_lag import correct_pose_lag, fit_pose_lag
 from tasks.joints import fit_joints, refine_states
 from tasks.reconstruct import reconstruct_canonical, reconstruct_report, refine_capture_poses
 from tasks.register import label_parts, part_masks_report, register_dynamic
@@ -27,12 +28,14 @@ __all__ = [
     "check_capture",
     "correct_frame_poses",
     "correct_pose_drift",
+    "correct_pose_lag",
     "diagnose_dynamic",
     "diagnose_twin",
     "estimate_capture_depth_calibration",
     "export_twin",
     "fit_frame_poses",
     "fit_joints",
+    "fit_pose_lag",
     "fit_session_drift",
     "fit_static_drift",
     "ingest_recording",
