@@ -90,11 +90,12 @@ class PoseLag:
         lag_s: the lag, seconds.
         lag_se_s: its standard error (frame-block jackknife), seconds.
         frame_interval_s: the median spacing of the timestamps, seconds (a "frame").
-        lags_frames: ``[G]`` the lags scored, frame intervals, increasing.
+        lags_frames: ``[G]`` the lags of the coarse search, frame intervals, increasing.
         disagreement: ``[G]`` the score at each: the mean over projected points of the robust
             depth misfit, 0 (every point lands on the depth it predicts) to 1 (none does).
-        disagreement_zero: the score at lag 0 (the poses as recorded).
-        disagreement_lag: the score at ``lag_s``.
+        disagreement_zero: the score at lag 0 (the poses as recorded), over the points that land
+            inside the other frame's image both at 0 and at ``lag_s``.
+        disagreement_lag: the score at ``lag_s``, over the same points.
         agreement_z: how much better the depth agrees at ``lag_s`` than at 0, in standard errors
             of that difference (frame-block jackknife); 0 when ``lag_s`` is 0.
         residual_zero_m: median absolute depth misfit of the points that land within
@@ -160,8 +161,9 @@ class PoseLag:
 def correct_pose_lag(world_from_camera: np.ndarray, timestamps: np.ndarray, lag_s: float) -> np.ndarray:
     """``[T, 4, 4]`` poses at the frames' ``timestamps [T]`` from ``world_from_camera [T, 4, 4]``
     recorded ``lag_s`` seconds late (negative: early): the recorded trajectory read at
-    ``timestamps + lag_s`` (``interpolate_poses``; frames whose time falls outside the recorded
-    span continue the end interval's motion). ``lag_s = 0`` returns a copy."""
+    ``timestamps + lag_s`` (``interpolate_poses``). The frames whose time falls outside the
+    recorded span (the last ``lag_s`` of a late recording) take the end pose: no better than
+    what was recorded, and no worse. ``lag_s = 0`` returns a copy."""
     poses = np.asarray(world_from_camera, dtype=np.float64)
     ts = np.asarray(timestamps, dtype=np.float64)
     if lag_s == 0.0 or ts.size < 2:
@@ -171,14 +173,13 @@ def correct_pose_lag(world_from_camera: np.ndarray, timestamps: np.ndarray, lag_
 
 @dataclass(frozen=True)
 class _Pairs:
-    """The projected points of every frame pair: source points in the source camera, the pair
-    each belongs to, and the pairs' frames."""
+    """The points projected between frame pairs: each point in its source camera and its pair,
+    and each pair's source and destination frames."""
 
     points: np.ndarray  # [N, 3] metres, source camera frame
     pair: np.ndarray  # [N] pair index
     src: np.ndarray  # [P] source frame of each pair
     dst: np.ndarray  # [P] destination frame of each pair
-    counts: np.ndarray  # [P] points per pair
 
 
 def estimate_pose_lag(capture: Capture, config: PoseLagConfig | None = None) -> PoseLag:
@@ -191,7 +192,9 @@ def estimate_pose_lag(capture: Capture, config: PoseLagConfig | None = None) -> 
     ``r^2 / (r^2 + s^2)`` for a misfit ``r`` (``s = robust_scale_m``) and 1 when it lands
     off ``j``'s image or on no depth, so the score is the fraction of depth that disagrees. The lag
     minimises the mean score: a coarse search over ``[-max_lag_frames, +max_lag_frames]``, a finer
-    one about its minimum, and the vertex of a parabola through the best scores. Only frames
+    one about its minimum over the points that stay in view across the finer window (a point
+    leaving the other frame's view as the lag changes would otherwise tilt the score one way in
+    time), and the vertex of a parabola through the best scores. Only frames
     whose poses stay inside the recorded span at every lag searched are compared (no
     extrapolation in the evidence). The standard errors come from redoing the search with blocks
     of consecutive frames left out.
@@ -361,7 +364,7 @@ def _draw_pairs(depth: np.ndarray, intrinsics: np.ndarray, used: np.ndarray, cfg
                     dst.append(int(j))
     per_pair = max(10, min(cfg.points_per_frame, cfg.max_points // max(len(src), 1)))
     pixels: dict[int, np.ndarray] = {}
-    points, pair_of, counts, keep = [], [], [], []
+    points, pair_of, keep = [], [], []
     for p, (i, _) in enumerate(zip(src, dst, strict=True)):
         if i not in pixels:
             v, u = np.nonzero(np.isfinite(depth[i]))
@@ -374,17 +377,15 @@ def _draw_pairs(depth: np.ndarray, intrinsics: np.ndarray, used: np.ndarray, cfg
         z = depth[i][pick[:, 1], pick[:, 0]]
         points.append(np.stack([(pick[:, 0] - cx) / fx * z, (pick[:, 1] - cy) / fy * z, z], 1))
         pair_of.append(np.full(len(pick), len(keep)))
-        counts.append(len(pick))
         keep.append(p)
     if not keep:
         empty = np.zeros(0, np.int64)
-        return _Pairs(np.zeros((0, 3)), empty, empty, empty, empty)
+        return _Pairs(np.zeros((0, 3)), empty, empty, empty)
     return _Pairs(
         points=np.concatenate(points),
         pair=np.concatenate(pair_of),
         src=np.asarray(src)[keep],
         dst=np.asarray(dst)[keep],
-        counts=np.asarray(counts, np.int64),
     )
 
 

@@ -41,14 +41,19 @@ def _constant_screw(t: np.ndarray) -> np.ndarray:
     return make_se3(rot, np.outer(t, [0.3, -0.1, 0.2]) + [1.0, 1.5, 2.0])
 
 
-def test_interpolated_poses_pass_through_the_recorded_ones_and_continue_their_motion():
+def test_interpolated_poses_pass_through_the_recorded_ones_and_hold_beyond_them():
     ts = np.arange(8) / 15.0
     poses = _constant_screw(ts)
     np.testing.assert_allclose(interpolate_poses(poses, ts, ts), poses, atol=1e-12)
-    # A constant rate of turn and travel is read back exactly between, before and after the samples.
-    at = np.array([-0.1, 0.01, 0.2, 0.31, ts[-1] + 0.15])
+    # A constant rate of turn and travel is read back exactly between the samples (measured: 2e-16),
+    # and the end poses hold beyond them.
+    at = np.array([0.01, 0.2, 0.31, ts[-1] - 0.01])
     np.testing.assert_allclose(interpolate_poses(poses, ts, at), _constant_screw(at), atol=1e-9)
-    np.testing.assert_allclose(correct_pose_lag(poses, ts, 0.05), _constant_screw(ts + 0.05), atol=1e-9)
+    np.testing.assert_allclose(interpolate_poses(poses, ts, [-0.1, ts[-1] + 0.15]), poses[[0, -1]], atol=1e-12)
+    fixed = correct_pose_lag(poses, ts, 2 / 15.0)
+    np.testing.assert_allclose(fixed[:-2], poses[2:], atol=1e-9)
+    np.testing.assert_allclose(fixed[-2:], poses[[-1, -1]], atol=1e-12)
+    np.testing.assert_allclose(interpolate_poses(poses[:2], ts[:2], [ts[0] + 0.03]), _constant_screw([ts[0] + 0.03]), atol=1e-9)
     with pytest.raises(ValueError, match="increasing"):
         interpolate_poses(poses, ts[::-1], at)
 
@@ -104,8 +109,8 @@ def test_a_static_recordings_lag_is_found_and_corrected_to_the_true_poses():
     truth = scene.truth.static_world_from_camera
     before = np.linalg.norm(scene.static.world_from_camera[:, :3, 3] - truth[:, :3, 3], axis=1)
     after = np.linalg.norm(fixed[:, :3, 3] - truth[:, :3, 3], axis=1)
-    # Inside the span the true poses come back to millimetres; the last two frames continue the
-    # end interval's motion (the recorded trajectory ends before their true time).
+    # Inside the span the true poses come back to millimetres; the last two frames hold the last
+    # recorded pose (the recorded trajectory ends before their true time).
     assert np.median(after[:-2]) < 0.003 < 0.03 < np.median(before), (np.median(after[:-2]), np.median(before))
 
 
