@@ -255,18 +255,26 @@ def estimate_pose_lag(capture: Capture, config: PoseLagConfig | None = None) -> 
     coarse_sums = table(coarse)
     best = float(coarse[int(np.argmin(coarse_sums.sum(1)))])
     at_end = abs(best) >= margin - 1e-9
-    # Fine: about the coarse minimum, over the points that stay in view across the whole window,
-    # so that no point entering or leaving a frame's view tilts the score one way in time.
+    # Fine: about the coarse minimum, over the points that stay in view across the whole window
+    # (no point entering or leaving a frame's view tilts the score one way in time) and that
+    # agree with the other frame's depth there to within robust_scale_m: the moving part, the
+    # hand and depth edges, whose misfit changes with the lag as the part moves, are left out.
     fine = best + np.arange(-cfg.fine_half_width_frames, cfg.fine_half_width_frames + 1e-9, cfg.fine_step_frames)
     fine = np.round(fine[np.abs(fine) <= margin + 1e-9], 9)
-    use = np.logical_and.reduce([_score_points(p, k, depth, pairs, cfg)[1] for p in at([fine[0], best, fine[-1]])])
+    ends = [_score_points(p, k, depth, pairs, cfg) for p in at([fine[0], best, fine[-1]])]
+    with np.errstate(invalid="ignore"):
+        use = ends[0][1] & ends[1][1] & ends[2][1] & (np.abs(ends[1][2]) <= cfg.robust_scale_m)
     fine_sums = table(fine, use)
     lag = _vertex(fine, fine_sums.sum(1), cfg.fit_half_width_frames)
 
-    # The agreement at the lag against the poses as recorded, over the points both see.
+    # The agreement at the lag against the poses as recorded, over the points seen at both that
+    # agree with the other frame's depth at either (what disagrees at both, the moving part and
+    # the hand, says nothing about the lag and only adds noise).
     score_zero, seen_zero, r_zero = _score_points(poses, k, depth, pairs, cfg)
     score_lag, seen_lag, r_lag = _score_points(at([lag])[0], k, depth, pairs, cfg)
-    both = seen_zero & seen_lag
+    with np.errstate(invalid="ignore"):
+        agrees = (np.abs(r_zero) <= cfg.robust_scale_m) | (np.abs(r_lag) <= cfg.robust_scale_m)
+    both = seen_zero & seen_lag & agrees
     zero_sums, lag_sums = _per_pair(score_zero, pairs, both), _per_pair(score_lag, pairs, both)
     both_counts = np.bincount(pairs.pair, weights=both, minlength=pairs.src.size)
 
