@@ -15,8 +15,9 @@ nothing but the recording: it can run before the registration and the reconstruc
 lagging poses would spoil. A lag that is a rigid shift of the whole trajectory (a constant
 velocity) is invisible to the frames and harmless to everything built on them alike; what they
 see, and what matters, is the camera's change of velocity. The moving part and the hand are not
-masked: their depth disagrees at every lag alike, and a robust (Geman-McClure) score bounds what
-each point can contribute.
+masked (nothing has found them yet): a robust (Geman-McClure) score bounds what each point can
+contribute to the coarse search, and the fine search counts only the points that agree with the
+other frame's depth near its minimum, which they do not.
 """
 
 from __future__ import annotations
@@ -51,10 +52,11 @@ class PoseLagConfig:
         max_points: at most this many projected points per lag, over all pairs (bounds the time
             on long recordings).
         robust_scale_m: a point whose depth misses by this much scores half of a point that is
-            missed entirely (Geman-McClure scale), metres.
+            missed entirely (Geman-McClure scale), metres; the fine search and the agreement test
+            count only points within this of the other frame's depth.
         max_depth_m: depth beyond this is not used, metres.
         min_confidence: depth whose ARKit confidence (0 low, 1 medium, 2 high) is below this is not
-            projected (captures without confidence use all).
+            used, in either frame of a pair (captures without confidence use all).
         edge_m: a projected point whose four neighbouring depths span more than this lies on a
             depth edge and is missed, metres.
         min_frames: the fewest frames that must be compared.
