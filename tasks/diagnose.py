@@ -411,7 +411,7 @@ def pose_lag_finding(lag: PoseLagResult, scope: str) -> tuple[list[EffectFinding
             f"images ({frames}, {lag.z_score:.0f} standard errors) and were not corrected. Model it: --effect pose_lag."
         )
     else:
-        line = f"{scope}: no pose lag against its images that needs correcting ({frames}). {lag.note}"
+        line = f"{scope}: {lag.note}"
 
     def energy(residual: float) -> float:
         return residual**2 if math.isfinite(residual) else 0.0
