@@ -30,7 +30,7 @@ from infra.store import ArtifactStore  # noqa: E402
 from schemas import DiagnosisReport, PipelineConfig, StageReport  # noqa: E402
 
 STATIC = "static recording"
-STAGES = ["ingest", "depth_calibration", "calibrate_depth", "refine_poses", "reconstruct", "reconstruct_report",
+STAGES = ["ingest", "pose_lag", "correct_pose_lag", "depth_calibration", "calibrate_depth", "refine_poses", "reconstruct", "reconstruct_report",
           "register", "part_masks", "frame_poses", "correct_frame_poses", "track", "fit_joints", "settle_parts", "final_masks", "joint_states", "predict_views", "diagnose"]
 # injected synthetic effect(s) -> (catalog effect that models it, its target)
 CASES = {

@@ -52,6 +52,13 @@ As the pipeline's ``frame_poses`` stage does, each frame's pose correction is me
 recording's static background after the masks and applied where significant (column
 ``frame_poses``: the frame-to-frame part's chi-square per degree of freedom, the whiteness, the
 depth agreement z and which part was applied); ``--no-frame-poses`` leaves the recorded poses (the ablation).
+As the pipeline's ``pose_lag`` and ``correct_pose_lag`` stages do, each recording's pose lag against
+its images is estimated from its own frames first and corrected where the ``PoseLagStageConfig`` gate
+passes (column ``pose_lag``: each recording's estimate in frame intervals, ``*`` where applied;
+``lag_err_frames``: the largest error of the two against the injected ``pose_lag`` effect);
+``--no-pose-lag`` leaves the recorded poses (the ablation: the pipeline before those stages).
+``--add-effects pose_lag:seconds=0.133`` injects a lag (into both recordings; the effect's
+``recordings`` parameter is a word, so a lag in one recording alone is ``--lag-recording dynamic``).
 """
 
 from __future__ import annotations
@@ -72,7 +79,14 @@ from _common import print_table, write_results  # noqa: E402
 from artitwin_core.capture import (  # noqa: E402
     DepthCalibrationConfig as CoreCalibrationConfig,
 )
-from artitwin_core.capture import PoseDrift, calibrate_depth, estimate_depth_calibration  # noqa: E402
+from artitwin_core.capture import (  # noqa: E402
+    PoseDrift,
+    PoseLagConfig,
+    calibrate_depth,
+    correct_pose_lag,
+    estimate_depth_calibration,
+    estimate_pose_lag,
+)
 from artitwin_core.change import PartConfig, build_canonical_tsdf, segment_parts  # noqa: E402
 from artitwin_core.joints import (  # noqa: E402
     JointFitConfig,
@@ -99,7 +113,7 @@ from artitwin_core.tracking import (  # noqa: E402
     estimate_frame_poses,
     track_part_points,
 )
-from schemas import DepthCalibrationConfig, PoseDriftConfig  # noqa: E402
+from schemas import DepthCalibrationConfig, PoseDriftConfig, PoseLagStageConfig  # noqa: E402
 
 DEFAULT_SCENES = list(BENCHMARK_SCENES)
 GRAVITY = (0.0, -1.0, 0.0)
@@ -151,6 +165,28 @@ def _gated(drift: PoseDrift, sig) -> tuple[PoseDrift | None, str]:
     cfg = PoseDriftConfig()
     why = sig.why_not(cfg.min_displacement_m, cfg.min_z_score, cfg.max_half_disagreement)
     return (None if why else drift), f"{1e3 * sig.size_m:.0f}" + (" (not applied)" if why else "")
+
+
+def _pose_lags(scene, spec) -> tuple[object, str, float]:
+    """The pose_lag and correct_pose_lag stages on both recordings: ``scene`` with each lag that
+    passes the ``PoseLagStageConfig`` gate corrected, a short description (each recording's lag in
+    frames, ``*`` where applied) and the largest error against the injected lag, in frames."""
+    from dataclasses import replace
+
+    gate = PoseLagStageConfig()
+    injected = spec.resolved_effects.get("pose_lag")
+    words, worst = [], 0.0
+    for label in ("static", "dynamic"):
+        cap = getattr(scene, label)
+        lag = estimate_pose_lag(cap, PoseLagConfig(max_lag_frames=gate.max_lag_frames, max_depth_m=gate.max_depth_m))
+        true_s = injected["seconds"] if injected and injected["recordings"] in ("both", label) else 0.0
+        worst = max(worst, abs(lag.lag_s - true_s) / lag.frame_interval_s)
+        applied = not lag.why_not(gate.min_lag_frames, gate.min_z_score, gate.min_agreement_z)
+        words.append(f"{label[0]} {lag.lag_frames:+.2f}" + ("*" if applied else ""))
+        if applied:
+            fixed = correct_pose_lag(cap.world_from_camera, cap.timestamps, lag.lag_s)
+            scene = replace(scene, **{label: replace(cap, world_from_camera=fixed)})
+    return scene, " / ".join(words), worst
 
 
 def _pipeline_upstream(
@@ -298,12 +334,21 @@ def bench_scene(
     name: str, save_tracks: Path | None = None, cache: Path | None = None, static_poses: str = "refined",
     write_cache: Path | None = None, without_effects: tuple[str, ...] = (), rgb_time_offset_s: float = 0.0,
     add_effects: tuple[str, ...] = (), depth_calibration: tuple[float, float] | str | None = None,
-    pose_drift: bool = False, seed: int | None = None, frame_poses: bool = True,
+    pose_drift: bool = False, seed: int | None = None, frame_poses: bool = True, pose_lag: bool = True,
+    lag_recording: str = "both",
 ) -> list[dict]:
     from dataclasses import replace
 
     spec = scene_spec(name, without_effects, add_effects, seed)
+    if lag_recording != "both" and "pose_lag" in spec.resolved_effects:
+        spec = replace(spec, effects=tuple((n, {**p, "recordings": lag_recording}) if n == "pose_lag" else (n, p)
+                                           for n, p in spec.effects))
     scene = generate_scene(spec)
+    lags, lag_err = "", float("nan")
+    if pose_lag:  # the pose_lag and correct_pose_lag stages, right after ingest
+        t0 = time.perf_counter()
+        scene, lags, lag_err = _pose_lags(scene, spec)
+        lag_s = time.perf_counter() - t0
     static_drift = ""
     if pose_drift:  # the static_drift and correct_pose_drift stages, before the depth calibration
         fit = estimate_depth_calibration(scene.static, config=CoreCalibrationConfig(pose_drift=True))
@@ -340,6 +385,9 @@ def bench_scene(
             "depth_calibration": "" if calibration is None else (
                 f"{calibration[0]:.4f} z + {1e3 * calibration[1]:.1f} mm" + ("" if calibration[2] else " (not applied)")),
             "pose_drift": f"static {static_drift} / dynamic {up['dynamic_drift']}" if pose_drift else "",
+            "pose_lag": lags,
+            "lag_err_frames": lag_err,
+            "pose_lag_s": lag_s if pose_lag else float("nan"),
             "frame_poses": up.get("frame_poses", ""),
             "part": k,
             "joint_true": joint_true.joint_type,
@@ -529,9 +577,14 @@ def main() -> None:
                         "(the effect pose_drift)")
     parser.add_argument("--no-frame-poses", action="store_true",
                         help="leave the dynamic recording's poses as recorded (no frame_poses correction; the ablation)")
+    parser.add_argument("--no-pose-lag", action="store_true",
+                        help="leave both recordings' poses as recorded (no pose_lag correction; the ablation)")
+    parser.add_argument("--lag-recording", choices=["both", "static", "dynamic"], default="both",
+                        help="the recording(s) an injected pose_lag effect (--add-effects pose_lag:seconds=S) lags")
     args = parser.parse_args()
-    if args.cache and (args.depth_calibration or args.pose_drift or args.no_frame_poses):
-        parser.error("--depth-calibration, --pose-drift and --no-frame-poses change the recordings; they cannot reuse a --cache")
+    if args.cache and (args.depth_calibration or args.pose_drift or args.no_frame_poses or args.no_pose_lag):
+        parser.error("--depth-calibration, --pose-drift, --no-frame-poses and --no-pose-lag change the recordings; they "
+                     "cannot reuse a --cache")
     if args.cache and (args.without_effects or args.add_effects):
         parser.error("--without-effects and --add-effects change the recordings; they cannot reuse a --cache of the full scenes")
     if args.seeds < 1:
@@ -548,7 +601,8 @@ def main() -> None:
             rows.extend(
                 bench_scene(name, args.save_tracks, args.cache, args.static_poses, args.write_cache,
                             tuple(args.without_effects), args.rgb_time_offset, tuple(args.add_effects),
-                            args.depth_calibration, args.pose_drift, seed, not args.no_frame_poses)
+                            args.depth_calibration, args.pose_drift, seed, not args.no_frame_poses,
+                            not args.no_pose_lag, args.lag_recording)
             )
             print(f"{name}" + (f" (seed {seed})" if seed is not None else "") + ": done", flush=True)
     columns = [
@@ -557,6 +611,8 @@ def main() -> None:
         "part",
         "depth_calibration",
         "pose_drift",
+        "pose_lag",
+        "lag_err_frames",
         "frame_poses",
         "joint_true",
         "joint_est",
@@ -579,6 +635,7 @@ def main() -> None:
         "q_reached",
         "tracks",
         "track_err_mm",
+        "pose_lag_s",
         "register_masks_s",
         "frame_poses_s",
         "track_s",
@@ -614,6 +671,8 @@ def main() -> None:
                                   else args.depth_calibration),
             "pose_drift": args.pose_drift,
             "frame_poses": not args.no_frame_poses,
+            "pose_lag": not args.no_pose_lag,
+            "lag_recording": args.lag_recording,
         },
     )
     print(f"\nwrote {path}")

@@ -35,6 +35,7 @@ from schemas import (
     JointSet,
     PipelineConfig,
     PoseDriftResult,
+    PoseLagResult,
     Registration,
     StageReport,
     TrajectoriesArtifact,
@@ -69,6 +70,18 @@ def scene_pipeline(scene: str | Path, config: PipelineConfig, ex: Executor) -> P
         raw = raw_input(path, recording_files(path))
         caps[label] = h[f"ingest/{label}"] = ex.submit("ingest", config.ingest, {"recording": raw}, label)
         h[f"capture_check/{label}"] = ex.submit("capture_check", config.capture_check, {"capture": caps[label]}, label)
+    # Poses that lag the images are corrected first, before anything is built on them: the static
+    # recording's drift, depth calibration, refined poses and 3DGS, the dynamic recording's
+    # registration and part masks (a lagging pose makes the background look moved: phantom parts).
+    # Each lag is estimated from its own recording, so it needs nothing downstream. With the
+    # correction off the lag is only reported, and every other stage keeps its key.
+    lags = {}
+    for label in ("static", "dynamic"):
+        lags[label] = h[f"pose_lag/{label}"] = ex.submit("pose_lag", config.pose_lag, {"capture": caps[label]}, label)
+        if config.pose_lag.correct:
+            caps[label] = h[f"correct_pose_lag/{label}"] = ex.submit(
+                "correct_pose_lag", config.pose_lag, {"capture": caps[label], "lag": lags[label]}, label
+            )
     # With the poses' drift modelled (pose_drift), the static recording's is fitted from its own
     # frames and corrected before anything else is built on it (the depth calibration included,
     # which drifting poses would bias); the dynamic recording's needs the canonical model and its
@@ -174,7 +187,8 @@ def scene_pipeline(scene: str | Path, config: PipelineConfig, ex: Executor) -> P
         "dynamic",
     )
     h["diagnose_dynamic"] = ex.submit(
-        "diagnose_dynamic", config.diagnose, {"dynamic": dynamic, "prediction": dyn_prediction}, "dynamic"
+        "diagnose_dynamic", config.diagnose,
+        {"dynamic": dynamic, "prediction": dyn_prediction, "pose_lag": lags["dynamic"]}, "dynamic",
     )
     prediction = h["predict_views"] = ex.submit(
         "predict_views", config.predict_views, {"capture": static, "poses": poses, "checkpoint": gaussians}, "static"
@@ -182,7 +196,7 @@ def scene_pipeline(scene: str | Path, config: PipelineConfig, ex: Executor) -> P
     h["diagnose"] = ex.submit(
         "diagnose",
         config.diagnose,
-        {"capture": static, "prediction": prediction, "joints": joints, "trajectories": tracks},
+        {"capture": static, "prediction": prediction, "joints": joints, "trajectories": tracks, "pose_lag": lags["static"]},
         "scene",
     )
     # V. simulator files of the twin
@@ -215,9 +229,10 @@ def diagnose_failed_run(
     ``failures`` in place."""
     if not failures or "diagnose" in runs or "predict_views" not in runs or handles.static_capture is None:
         return
-    handle = ex.submit(
-        "diagnose_static", config.diagnose, {"capture": handles.static_capture, "prediction": handles["predict_views"]}, "static"
-    )
+    inputs = {"capture": handles.static_capture, "prediction": handles["predict_views"]}
+    if "pose_lag/static" in runs:  # its lag is reported too when it was measured
+        inputs["pose_lag"] = handles["pose_lag/static"]
+    handle = ex.submit("diagnose_static", config.diagnose, inputs, "static")
     result = ex.result(handle)
     (failures if isinstance(result, StageFailure) else runs)["diagnose_static"] = result
 
@@ -275,6 +290,16 @@ def build_summary(
                 "applied": float(drift.applied),
             }
             entry["notes"] = [drift.note] if drift.note else []
+        elif run.kind == PoseLagResult.kind:
+            lag = store.get(run.key, PoseLagResult)
+            entry["metrics"] = {
+                "lag_s": lag.lag_s, "lag_frames": lag.lag_frames, "lag_se_s": _finite(lag.lag_se_s),
+                "lag_z_score": _finite(lag.z_score), "agreement_z": _finite(lag.agreement_z),
+                "residual_before_m": _finite(lag.residual_zero_m), "residual_after_m": _finite(lag.residual_lag_m),
+                "frame_interval_s": _finite(lag.frame_interval_s), "estimated": float(lag.estimated),
+                "significant": float(lag.significant), "applied": float(lag.applied), "forced": float(lag.forced),
+            }
+            entry["notes"] = [lag.note] if lag.note else []
         elif run.kind == FramePoseCorrections.kind:
             fp = store.get(run.key, FramePoseCorrections)
             finite = np.isfinite(fp.translation_se_m)

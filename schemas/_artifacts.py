@@ -168,6 +168,49 @@ class PoseDriftResult(Artifact):
     note: str = Field(default="", description="Why it is not applied, in words; empty when it is.")
 
 
+class PoseLagResult(Artifact):
+    """How late a recording's poses are against its RGB-D frames (``artitwin_core.capture.estimate_pose_lag``)
+    and whether ``correct_pose_lag`` corrects them: the camera's pose at ``timestamps[i]`` is the
+    recorded trajectory's at ``timestamps[i] + lag_s``."""
+
+    kind = "pose_lag"
+    schema_version = 1
+
+    estimated: bool = Field(description="Whether a lag was estimated (False: too few frames, or the stage was turned off).")
+    lag_s: float = Field(description="The lag, seconds: positive when the poses are late, negative when early; 0 when not estimated.")
+    lag_frames: float = Field(description="The lag in frame intervals (lag_s / frame_interval_s).")
+    lag_se_s: float = Field(description="Standard error of lag_s (frame-block jackknife), seconds; NaN when not estimated.")
+    frame_interval_s: float = Field(description="The median spacing of the recording's timestamps, seconds (one 'frame').")
+    z_score: float = Field(description="|lag_s| over its standard error; 0 when not estimated.")
+    agreement_z: float = Field(
+        description="How much better the frames' depth agrees at the lag than at the poses as recorded, in standard errors "
+        "of that difference (frame-block jackknife); 0 when not estimated."
+    )
+    disagreement_zero: float = Field(
+        description="Fraction of projected depth that disagrees (robust, 0 to 1) at the poses as recorded; NaN when not estimated."
+    )
+    disagreement_lag: float = Field(description="The same at the lag; NaN when not estimated.")
+    residual_zero_m: float = Field(
+        description="Median absolute depth misfit of the agreeing points at the poses as recorded, metres; NaN when not estimated."
+    )
+    residual_lag_m: float = Field(description="The same at the lag, metres; NaN when not estimated.")
+    lags_frames: Array("float64", "N") = Field(description="The lags scored, frame intervals, increasing, [N]; empty when not estimated.")
+    disagreement: Array("float64", "N") = Field(description="The disagreement at each of them (0 to 1), [N].")
+    searched_frames: float = Field(description="The lags searched: -searched_frames to +searched_frames frame intervals.")
+    frames_used: int = Field(description="Frames whose depth was compared (those kept clear of the recording's ends).")
+    pairs: int = Field(description="Frame pairs compared.")
+    method: str = Field(description="How it was estimated.")
+    significant: bool = Field(
+        description="Whether it passed the gate (PoseLagStageConfig: its size, its z-score, and the frames' depth agreeing "
+        "better at it)."
+    )
+    applied: bool = Field(description="Whether correct_pose_lag corrects the poses by it.")
+    forced: bool = Field(
+        default=False, description="Whether it was applied because the effect pose_lag is modelled, whatever the gate said."
+    )
+    note: str = Field(default="", description="What was done and why, in words (why it was not applied, or that it was forced).")
+
+
 class FramePoseCorrections(Artifact):
     """Per-frame corrections of a recording's poses measured on its static background
     (``artitwin_core.tracking.estimate_frame_poses``): ``corrected[t] = corrections[t] @ recorded[t]``,

@@ -2,7 +2,7 @@
 
 from __future__ import annotations
 
-from pydantic import Field
+from pydantic import Field, model_validator
 
 from schemas._articulate import ArticulateConfig
 from schemas._base import StageConfig
@@ -119,6 +119,50 @@ class PoseDriftConfig(StageConfig):
     tsdf_max_frames: int = Field(default=20, ge=1, description="Static frames fused into that TSDF.")
 
 
+class PoseLagStageConfig(StageConfig):
+    """Each recording's pose lag (the poses late or early against both RGB and depth, as phone exports can be),
+    estimated from how well its frames' depth agrees at poses shifted in time (artitwin_core.capture.estimate_pose_lag)
+    and corrected right after ingest, before anything is built on the poses: the static recording's before the pose
+    refinement and the 3DGS, the dynamic recording's before the registration and the part masks (lagging poses make
+    the static background look moved, and phantom parts). Applied only where the evidence is significant."""
+
+    correct: bool = Field(
+        default=True,
+        description="Correct the poses by the estimated lag where it passes the gate below. Off: the lag is still "
+        "estimated and reported (summary.json, the diagnosis), the poses stay as recorded and the correcting stage is "
+        "left out of the graph (every later stage keeps its store key).",
+    )
+    model: bool = Field(
+        default=False,
+        description="Apply the estimated lag whatever the gate says (set by the effect pose_lag), as long as one was "
+        "estimated inside the search range. Needs correct.",
+    )
+    max_lag_frames: float = Field(
+        default=4.0, gt=0, le=20,
+        description="Lags from -this to +this many frame intervals (the median spacing of the timestamps) are searched; "
+        "shorter on short recordings.",
+    )
+    min_lag_frames: float = Field(
+        default=0.2, ge=0, description="A lag is applied only if it is at least this many frame intervals,"
+    )
+    min_z_score: float = Field(default=3.0, ge=0, description="... at least this many standard errors from 0,")
+    min_agreement_z: float = Field(
+        default=2.0,
+        description="... and the frames' depth agrees better at it than at the poses as recorded by at least this "
+        "z-score (a lag that does not improve agreement is left alone).",
+    )
+    max_depth_m: float = Field(default=4.5, gt=0, description="Depth beyond this is not compared, metres.")
+
+    @model_validator(mode="after")
+    def _model_needs_correct(self) -> PoseLagStageConfig:
+        if self.model and not self.correct:
+            raise ValueError(
+                "pose_lag.model (the effect pose_lag) forces the correction but pose_lag.correct is off; turn correct on "
+                "or drop the effect."
+            )
+        return self
+
+
 class TrackConfig(StageConfig):
     """Tracking points on each moving part and lifting them to 3D (see artitwin_core.tracking)."""
 
@@ -209,6 +253,7 @@ EFFECT_STAGES: dict[str, str] = {
     "depth_scale_offset": "reconstruct",
     "screw_joint": "fit_joints",
     "pose_drift": "pose_drift",
+    "pose_lag": "pose_lag",
     "time_offset": "joint_states",
 }
 # Effects modelled with a value the diagnosis fits (``NAME=VALUE`` in ``with_effects``): the
@@ -267,6 +312,10 @@ class PipelineConfig(StageConfig):
     part_masks: PartMasksConfig = Field(default_factory=PartMasksConfig, description="Part and hand masks.")
     pose_drift: PoseDriftConfig = Field(
         default_factory=PoseDriftConfig, description="Both recordings' pose drift, when pose_drift is modelled."
+    )
+    pose_lag: PoseLagStageConfig = Field(
+        default_factory=PoseLagStageConfig,
+        description="Each recording's pose lag against its images, estimated and corrected right after ingest.",
     )
     frame_poses: FramePosesConfig = Field(
         default_factory=FramePosesConfig, description="Per-frame pose corrections of the dynamic recording from its static background."
@@ -328,6 +377,8 @@ class PipelineConfig(StageConfig):
             update["fit_joints"] = self.fit_joints.model_copy(update={"model_screw": True})
         if "pose_drift" in names:
             update["pose_drift"] = self.pose_drift.model_copy(update={"model": True})
+        if "pose_lag" in names:
+            update["pose_lag"] = self.pose_lag.model_copy(update={"model": True, "correct": True})
         for name, value in values.items():
             stage, field = EFFECT_STAGES[name], EFFECT_VALUES[name][1]
             current = update.get(stage, getattr(self, stage))
@@ -341,6 +392,8 @@ class PipelineConfig(StageConfig):
             out.append("screw_joint")
         if self.pose_drift.model:
             out.append("pose_drift")
+        if self.pose_lag.model:
+            out.append("pose_lag")
         for name, (_, field) in EFFECT_VALUES.items():
             value = getattr(getattr(self, EFFECT_STAGES[name]), field)
             if value != 0.0:

@@ -15,6 +15,7 @@ from tasks.frame_poses import correct_frame_poses, fit_frame_poses
 from tasks.ingest import check_capture, ingest_recording
 from tasks.joints import fit_joints, refine_states
 from tasks.parts import final_masks, settle_candidate_parts
+from tasks.pose_lag import correct_pose_lag, fit_pose_lag
 from tasks.reconstruct import reconstruct_canonical, reconstruct_report, refine_capture_poses
 from tasks.register import label_parts, part_masks_report, register_dynamic
 from tasks.track import track_parts
@@ -28,6 +29,7 @@ __all__ = [
     "check_capture",
     "correct_frame_poses",
     "correct_pose_drift",
+    "correct_pose_lag",
     "diagnose_dynamic",
     "diagnose_static",
     "diagnose_twin",
@@ -36,6 +38,7 @@ __all__ = [
     "final_masks",
     "fit_frame_poses",
     "fit_joints",
+    "fit_pose_lag",
     "fit_session_drift",
     "fit_static_drift",
     "ingest_recording",

@@ -47,6 +47,7 @@ from schemas import (
     JointSet,
     MaskSequenceArtifact,
     PoseDriftConfig,
+    PoseLagResult,
     Registration,
     ReportImage,
     TrajectoriesArtifact,
@@ -392,25 +393,56 @@ def self_consistency(capture: CaptureArtifact, config: DiagnoseConfig) -> tuple[
     return findings, lines
 
 
-@stage(name="diagnose", version=7, config=DiagnoseConfig, output=DiagnosisReport)
-def diagnose_twin(
-    capture: CaptureArtifact,
-    prediction: ViewPrediction,
-    joints: JointSet,
-    trajectories: TrajectoriesArtifact,
-    config: DiagnoseConfig,
-) -> DiagnosisReport:
-    """Diagnose the twin: the static recording against its predicted views, each joint against
-    its tracks, and (``config.self_consistency``) the static recording against itself."""
-    report = report_from_sections(diagnose_sections(capture, prediction, joints, trajectories, config))
-    if not config.self_consistency:
-        return report
-    findings, lines = self_consistency(capture, config)
-    if config.effects:  # restricted to named effects
-        findings = [f for f in findings if f.name in config.effects]
-        lines = [line for line in lines if any(f"--effect {f.name}" in line for f in findings)]
+def pose_lag_finding(lag: PoseLagResult, scope: str) -> tuple[list[EffectFinding], list[str]]:
+    """The recording's pose lag (stage ``pose_lag``) as a finding, and the conclusion's line: how
+    late its poses are and whether they were corrected. The finding is significant when the lag
+    passed the stage's gate, and enabled (a rerun with ``--effect pose_lag`` is suggested) when it
+    is significant but the poses were not corrected (``pose_lag.correct`` off)."""
+    if not lag.estimated:
+        return [], [f"{scope}: {lag.note}"] if lag.note else []
+    frames = f"{lag.lag_frames:+.2f} frames, standard error {lag.lag_se_s / lag.frame_interval_s:.2f}"
+    if lag.applied:
+        line = (
+            f"{scope}: its poses were {1e3 * abs(lag.lag_s):.0f} ms {'late' if lag.lag_s >= 0 else 'early'} against its "
+            f"images ({frames}) and were corrected before anything was built on them"
+            + (" (forced by the effect pose_lag)." if lag.forced else ".")
+        )
+    elif lag.significant:
+        line = (
+            f"{scope}: its poses are {1e3 * abs(lag.lag_s):.0f} ms {'late' if lag.lag_s >= 0 else 'early'} against its "
+            f"images ({frames}, {lag.z_score:.0f} standard errors) and were not corrected. Model it: --effect pose_lag."
+        )
+    else:
+        line = f"{scope}: {lag.note}"
+
+    def energy(residual: float) -> float:
+        return residual**2 if math.isfinite(residual) else 0.0
+
+    before, after = energy(lag.residual_zero_m), energy(lag.residual_lag_m)
+    finding = EffectFinding(
+        name="pose_lag", scope=scope, target="self-consistency",
+        explained_frac=float(1.0 - after / before) if before > 0 else 0.0,
+        energy_before=before, energy_after=after, significant=lag.significant,
+        enabled=lag.significant and not lag.applied,
+        params=_json_safe({
+            "seconds": lag.lag_s, "frames": lag.lag_frames, "se_s": lag.lag_se_s, "z_score": lag.z_score,
+            "agreement_z": lag.agreement_z, "applied": lag.applied, "forced": lag.forced,
+        }),
+    )
+    return [finding], [line]
+
+
+def _lag_findings(pose_lag: PoseLagResult | None, scope: str, config: DiagnoseConfig) -> tuple[list[EffectFinding], list[str]]:
+    if pose_lag is None or (config.effects and "pose_lag" not in config.effects):
+        return [], []
+    return pose_lag_finding(pose_lag, scope)
+
+
+def _with_findings(report: DiagnosisReport, scope: str, findings: list[EffectFinding], lines: list[str]) -> DiagnosisReport:
+    """``report`` with findings the twin's residuals did not produce (the recording against
+    itself, its pose lag) and their conclusion lines added."""
     enabled = list(report.enabled)
-    enabled += [f"{STATIC_SCOPE}/{f.name}" for f in findings if f.enabled and f"{STATIC_SCOPE}/{f.name}" not in enabled]
+    enabled += [f"{scope}/{f.name}" for f in findings if f.enabled and f"{scope}/{f.name}" not in enabled]
     metrics = dict(report.metrics)
     metrics["enabled_count"] = float(len(enabled))
     metrics["significant_count"] = float(metrics.get("significant_count", 0.0) + sum(f.significant for f in findings))
@@ -421,20 +453,49 @@ def diagnose_twin(
     })
 
 
-@stage(name="diagnose_static", version=1, config=DiagnoseConfig, output=DiagnosisReport)
-def diagnose_static(capture: CaptureArtifact, prediction: ViewPrediction, config: DiagnoseConfig) -> DiagnosisReport:
-    """``diagnose`` with no joints: the static recording against its predicted views (and itself).
-    A scene run whose joints could not be fitted (a stage failed) still gets this, because a failing
-    scene is when a user most needs to know why."""
+@stage(name="diagnose", version=8, config=DiagnoseConfig, output=DiagnosisReport)
+def diagnose_twin(
+    capture: CaptureArtifact,
+    prediction: ViewPrediction,
+    joints: JointSet,
+    trajectories: TrajectoriesArtifact,
+    config: DiagnoseConfig,
+    pose_lag: PoseLagResult | None = None,
+) -> DiagnosisReport:
+    """Diagnose the twin: the static recording against its predicted views, each joint against
+    its tracks, and (``config.self_consistency``) the static recording against itself; with the
+    static recording's ``pose_lag``, how late its poses were and whether they were corrected."""
+    report = report_from_sections(diagnose_sections(capture, prediction, joints, trajectories, config))
+    findings, lines = [], []
+    if config.self_consistency:
+        findings, lines = self_consistency(capture, config)
+        if config.effects:  # restricted to named effects
+            findings = [f for f in findings if f.name in config.effects]
+            lines = [line for line in lines if any(f"--effect {f.name}" in line for f in findings)]
+    lag_findings, lag_lines = _lag_findings(pose_lag, STATIC_SCOPE, config)
+    return _with_findings(report, STATIC_SCOPE, findings + lag_findings, lines + lag_lines)
+
+
+@stage(name="diagnose_static", version=2, config=DiagnoseConfig, output=DiagnosisReport)
+def diagnose_static(
+    capture: CaptureArtifact, prediction: ViewPrediction, config: DiagnoseConfig, pose_lag: PoseLagResult | None = None
+) -> DiagnosisReport:
+    """``diagnose`` with no joints: the static recording against its predicted views (and itself,
+    and its pose lag). A scene run whose joints could not be fitted (a stage failed) still gets
+    this, because a failing scene is when a user most needs to know why."""
     empty = TrajectoriesArtifact(
         points_in_world=np.zeros((0, 0, 3)), pixels=np.zeros((0, 0, 2), np.float32), valid=np.zeros((0, 0), bool)
     )
-    return diagnose_twin.fn(capture, prediction, JointSet(joints=[]), empty, config)
+    return diagnose_twin.fn(capture, prediction, JointSet(joints=[]), empty, config, pose_lag)
 
 
-@stage(name="diagnose_dynamic", version=2, config=DiagnoseConfig, output=DiagnosisReport)
-def diagnose_dynamic(dynamic: CaptureArtifact, prediction: ViewPrediction, config: DiagnoseConfig) -> DiagnosisReport:
-    """Diagnose the articulated twin against the dynamic recording (``predict_dynamic``)."""
+@stage(name="diagnose_dynamic", version=3, config=DiagnoseConfig, output=DiagnosisReport)
+def diagnose_dynamic(
+    dynamic: CaptureArtifact, prediction: ViewPrediction, config: DiagnoseConfig, pose_lag: PoseLagResult | None = None
+) -> DiagnosisReport:
+    """Diagnose the articulated twin against the dynamic recording (``predict_dynamic``); with
+    the dynamic recording's ``pose_lag``, how late its poses were and whether they were corrected."""
     data = _sensor_data(dynamic, prediction, config)
     section = (DYNAMIC_SCOPE, run_diagnosis(data, _effects(config), _core_config(config)), data)
-    return report_from_sections([section], title="ArtiTwin diagnosis: the dynamic recording")
+    report = report_from_sections([section], title="ArtiTwin diagnosis: the dynamic recording")
+    return _with_findings(report, DYNAMIC_SCOPE, *_lag_findings(pose_lag, DYNAMIC_SCOPE, config))

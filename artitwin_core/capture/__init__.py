@@ -14,6 +14,7 @@ from artitwin_core.capture._calibrate import (
 from artitwin_core.capture._common import depth_intrinsics_from_rgb, scale_intrinsics
 from artitwin_core.capture._detect import FORMATS, detect_format, read_capture, recording_files
 from artitwin_core.capture._drift import DriftSignificance, PoseDrift
+from artitwin_core.capture._lag import PoseLag, PoseLagConfig, correct_pose_lag, estimate_pose_lag
 from artitwin_core.capture._nerfstudio import read_nerfstudio, write_nerfstudio
 from artitwin_core.capture._options import ReadOptions
 from artitwin_core.capture._r3d import read_r3d, write_r3d
@@ -29,12 +30,16 @@ __all__ = [
     "DepthCalibrationConfig",
     "DriftSignificance",
     "PoseDrift",
+    "PoseLag",
+    "PoseLagConfig",
     "ReadOptions",
     "SceneRecordings",
     "calibrate_depth",
+    "correct_pose_lag",
     "depth_intrinsics_from_rgb",
     "detect_format",
     "estimate_depth_calibration",
+    "estimate_pose_lag",
     "find_scene_recordings",
     "intrinsics_matrix",
     "read_capture",

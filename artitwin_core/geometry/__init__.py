@@ -14,11 +14,13 @@ from artitwin_core.geometry._se3 import (
     quat_wxyz_to_matrix,
     transform_points,
 )
+from artitwin_core.geometry._trajectory import interpolate_poses
 
 __all__ = [
     "OPENGL_FROM_OPENCV",
     "axis_angle_to_matrix",
     "check_rigid",
+    "interpolate_poses",
     "invert_se3",
     "make_se3",
     "matrix_to_quat_wxyz",

@@ -110,11 +110,11 @@ def test_pipeline_routes_later_stages_through_the_calibration_when_modelled(tmp_
     plain, ex = RecordingExecutor(), RecordingExecutor()
     scene_pipeline(scene, PipelineConfig.preset("quick"), plain)
     assert not any(k.startswith(("depth_calibration", "calibrate_depth")) for k in plain.calls)
-    assert plain.calls["register/dynamic"] == {"static": "ingest/static", "dynamic": "ingest/dynamic"}
+    assert plain.calls["register/dynamic"] == {"static": "correct_pose_lag/static", "dynamic": "correct_pose_lag/dynamic"}
     scene_pipeline(scene, PipelineConfig.preset("quick").with_effects(["depth_scale_offset"]), ex)
-    assert ex.calls["depth_calibration/static"] == {"capture": "ingest/static"}
+    assert ex.calls["depth_calibration/static"] == {"capture": "correct_pose_lag/static"}
     cal = "depth_calibration/static"
-    assert ex.calls["calibrate_depth/dynamic"] == {"capture": "ingest/dynamic", "calibration": cal}
+    assert ex.calls["calibrate_depth/dynamic"] == {"capture": "correct_pose_lag/dynamic", "calibration": cal}
     assert ex.calls["register/dynamic"] == {"static": "calibrate_depth/static", "dynamic": "calibrate_depth/dynamic"}
     # The per-frame pose corrections are measured on the corrected depth, and later stages read both.
     assert ex.calls["frame_poses/dynamic"] == {"dynamic": "calibrate_depth/dynamic", "masks": "part_masks/dynamic"}

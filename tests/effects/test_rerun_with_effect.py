@@ -22,7 +22,7 @@ from schemas import DiagnosisReport, PipelineConfig, StageReport
 
 EFFECT = "exposure_white_balance"
 STATIC = "static recording"
-STAGES = ["ingest", "refine_poses", "reconstruct", "reconstruct_report", "register", "part_masks",
+STAGES = ["ingest", "pose_lag", "correct_pose_lag", "refine_poses", "reconstruct", "reconstruct_report", "register", "part_masks",
           "frame_poses", "correct_frame_poses", "track", "fit_joints", "settle_parts", "final_masks", "joint_states", "predict_views", "diagnose"]  # what the diagnosis needs (no stage IV, no export)
 
 

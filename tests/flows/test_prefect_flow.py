@@ -66,7 +66,8 @@ def test_scene_flow_writes_summary_and_reruns_from_cache(tmp_path, tiny_scene):
     summary = json.loads((out / "summary.json").read_text())
     assert summary["stages"].keys() == first["stages"].keys()
     assert set(summary["stages"]) == {
-        "ingest/static", "ingest/dynamic", "capture_check/static", "capture_check/dynamic", "refine_poses",
+        "ingest/static", "ingest/dynamic", "capture_check/static", "capture_check/dynamic", "pose_lag/static",
+        "pose_lag/dynamic", "correct_pose_lag/static", "correct_pose_lag/dynamic", "refine_poses",
         "reconstruct", "reconstruct_report", "register", "part_masks", "part_masks_report", "frame_poses",
         "correct_frame_poses", "track", "fit_joints", "settle_parts", "final_masks",
         "joint_states", "articulate", "articulate_report", "predict_views", "diagnose", "predict_dynamic", "diagnose_dynamic",
@@ -80,6 +81,10 @@ def test_scene_flow_writes_summary_and_reruns_from_cache(tmp_path, tiny_scene):
     frame_poses = summary["stages"]["frame_poses"]
     assert frame_poses["metrics"]["applied"] == 0 and frame_poses["metrics"]["fast_chi2_per_dof"] < 10
     assert "poses stay as recorded" in frame_poses["notes"][0]
+    # ... and they are in time with the images: no lag is corrected (measured: -0.004 and +0.002 frame).
+    for label in ("static", "dynamic"):
+        lag = summary["stages"][f"pose_lag/{label}"]["metrics"]
+        assert lag["estimated"] == 1 and lag["applied"] == 0 and abs(lag["lag_frames"]) < 0.1, lag
     check = summary["stages"]["capture_check/static"]["metrics"]
     assert check["frames_count"] > 0 and 0 < check["valid_depth_frac"] <= 1
     assert [j["type"] for j in summary["joints"]] == ["revolute"]  # the tiny scene's one door

@@ -199,8 +199,8 @@ def test_pipeline_routes_later_stages_through_the_drift_corrections(tmp_path):
     assert config.enabled_effects() == ["depth_scale_offset", "pose_drift"]
     scene_pipeline(scene, config, ex)
     # The static drift first: the depth calibration would be biased by drifting poses.
-    assert ex.calls["static_drift/static"] == {"capture": "ingest/static"}
-    assert ex.calls["correct_pose_drift/static"] == {"capture": "ingest/static", "drift": "static_drift/static"}
+    assert ex.calls["static_drift/static"] == {"capture": "correct_pose_lag/static"}
+    assert ex.calls["correct_pose_drift/static"] == {"capture": "correct_pose_lag/static", "drift": "static_drift/static"}
     assert ex.calls["depth_calibration/static"] == {"capture": "correct_pose_drift/static"}
     assert ex.calls["calibrate_depth/static"] == {"capture": "correct_pose_drift/static", "calibration": "depth_calibration/static"}
     assert ex.calls["register/dynamic"] == {"static": "calibrate_depth/static", "dynamic": "calibrate_depth/dynamic"}

@@ -1,0 +1,99 @@
+"""Stages: estimate how late each recording's poses are against its RGB-D frames, and correct them.
+
+They run right after ``ingest``, before anything reads the poses: the static recording's lag is
+corrected before its drift, depth calibration, pose refinement and 3DGS; the dynamic recording's
+before the registration and the part masks (lagging poses make the static background look moved,
+and phantom parts). A lag is estimated from the recording alone (its frames' depth agrees only at
+the right poses), so nothing downstream is needed. One that does not pass the gate
+(``PoseLagStageConfig``) is stored with ``applied = False`` and a note, and the poses stay as
+recorded; the effect ``pose_lag`` forces it.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+
+import numpy as np
+
+from artitwin_core import InputError
+from artitwin_core.capture import Capture, PoseLag, estimate_pose_lag
+from artitwin_core.capture import PoseLagConfig as CorePoseLagConfig
+from artitwin_core.capture import correct_pose_lag as shift_poses
+from schemas import CaptureArtifact, PoseLagResult, PoseLagStageConfig
+from tasks._convert import to_core
+from tasks._stage import stage
+
+METHOD = "depth-consistency-between-frames"
+
+
+def _not_estimated(capture: CaptureArtifact, note: str) -> PoseLagResult:
+    ts = np.asarray(capture.timestamps, np.float64)
+    interval = float(np.median(np.diff(ts))) if ts.size > 1 else math.nan
+    return PoseLagResult(
+        estimated=False, lag_s=0.0, lag_frames=0.0, lag_se_s=math.nan, frame_interval_s=interval,
+        z_score=0.0, agreement_z=0.0, disagreement_zero=math.nan, disagreement_lag=math.nan,
+        residual_zero_m=math.nan, residual_lag_m=math.nan, lags_frames=np.zeros(0), disagreement=np.zeros(0),
+        searched_frames=0.0, frames_used=0, pairs=0, method=METHOD, significant=False, applied=False, note=note,
+    )
+
+
+def _describe(lag: PoseLag) -> str:
+    direction = "late" if lag.lag_s >= 0 else "early"
+    return (
+        f"{1e3 * abs(lag.lag_s):.0f} ms {direction} ({lag.lag_frames:+.2f} frames, standard error "
+        f"{lag.lag_se_s / lag.frame_interval_s:.2f})"
+    )
+
+
+@stage(name="pose_lag", version=1, config=PoseLagStageConfig, output=PoseLagResult)
+def fit_pose_lag(capture: CaptureArtifact, config: PoseLagStageConfig) -> PoseLagResult:
+    """How late ``capture``'s poses are against its RGB-D frames (``estimate_pose_lag``) and
+    whether ``correct_pose_lag`` applies it: when it is at least ``min_lag_frames``,
+    ``min_z_score`` standard errors, and the frames' depth agrees better at it by
+    ``min_agreement_z``; or whenever one was found, with ``model`` (the effect ``pose_lag``).
+
+    A recording too short to search is reported (``estimated = False``, a note), not refused: the
+    lag is an optional correction and the run goes on with the poses as recorded.
+    """
+    core = dataclasses.replace(CorePoseLagConfig(), max_lag_frames=config.max_lag_frames, max_depth_m=config.max_depth_m)
+    try:
+        lag = estimate_pose_lag(to_core(Capture, capture), core)
+    except InputError as e:
+        return _not_estimated(capture, f"The pose lag was not estimated: {e}")
+    why = lag.why_not(config.min_lag_frames, config.min_z_score, config.min_agreement_z)
+    in_range = math.isfinite(lag.lag_s) and not lag.at_range_end
+    forced = bool(config.model and why and in_range and lag.lag_s != 0.0)
+    applied = bool(config.correct and (not why or forced))
+    said = f"The poses are {_describe(lag)} against the images"
+    if applied and not forced:
+        note = (
+            f"{said}; corrected (the frames' depth misfit {1e3 * lag.residual_zero_m:.1f} -> {1e3 * lag.residual_lag_m:.1f} mm, "
+            f"agreement {lag.agreement_z:.1f} standard errors better)."
+        )
+    elif forced:
+        note = f"{said}; corrected because the effect pose_lag is modelled, although {why}."
+    elif not config.correct:
+        note = f"{said}; not corrected: pose_lag.correct is off" + (f" (and {why})." if why else ".")
+    else:
+        note = f"{said}; not corrected: {why}."
+    return PoseLagResult(
+        estimated=True, lag_s=lag.lag_s, lag_frames=lag.lag_frames, lag_se_s=lag.lag_se_s,
+        frame_interval_s=lag.frame_interval_s, z_score=lag.z_score, agreement_z=lag.agreement_z,
+        disagreement_zero=lag.disagreement_zero, disagreement_lag=lag.disagreement_lag,
+        residual_zero_m=lag.residual_zero_m, residual_lag_m=lag.residual_lag_m,
+        lags_frames=lag.lags_frames, disagreement=lag.disagreement, searched_frames=lag.searched_frames,
+        frames_used=lag.frames_used, pairs=lag.pairs, method=METHOD, significant=not why, applied=applied, forced=forced,
+        note=note,
+    )
+
+
+@stage(name="correct_pose_lag", version=1, config=PoseLagStageConfig, output=CaptureArtifact)
+def correct_pose_lag(capture: CaptureArtifact, lag: PoseLagResult, config: PoseLagStageConfig) -> CaptureArtifact:
+    """``capture`` with each frame's pose read off its recorded trajectory ``lag.lag_s`` later
+    (``artitwin_core.capture.correct_pose_lag``; every other field as it was); a lag that was not
+    ``applied`` leaves the capture as it is."""
+    if not lag.applied:
+        return capture
+    poses = shift_poses(capture.world_from_camera, capture.timestamps, lag.lag_s)
+    return capture.model_copy(update={"world_from_camera": poses})
