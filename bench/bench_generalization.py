@@ -30,7 +30,9 @@ largest, mm), which a joint's pivot inherits; ``est`` lists every estimated join
 
 Run: ``python bench/bench_generalization.py [--scenes 30] [--start-seed 0] [--jobs 1] [--keep DIR]
 [--reuse] [--timeout 3600]``; prints a table per scene and the totals, writes
-``bench/results/generalization.json``. ``--reuse`` evaluates the runs kept under ``--keep`` again
+``bench/results/generalization.json``. ``--named [NAME ...]`` runs the scenes of
+``BENCHMARK_SCENES`` (all of them without names) through the same harness and evaluation instead,
+and writes ``bench/results/generalization_named.json``. ``--reuse`` evaluates the runs kept under ``--keep`` again
 (after a change to this evaluation) without rerunning the pipeline.
 """
 
@@ -70,8 +72,24 @@ TARGETS = {
 }
 
 
-def scene_format(seed: int) -> str:
-    return "nerfstudio" if seed % 2 == 0 else "r3d"
+def scene_format(seed: int | str) -> str:
+    """Nerfstudio for even seeds and named scenes, r3d for odd seeds."""
+    return "r3d" if isinstance(seed, int) and seed % 2 else "nerfstudio"
+
+
+def scene_id(text: str) -> int | str:
+    """A seed (a random scene) or the name of a scene of ``BENCHMARK_SCENES``."""
+    return int(text) if text.lstrip("-").isdigit() else text
+
+
+def scene_spec(ident: int | str):
+    from artitwin_core.synth import BENCHMARK_SCENES, random_scene_spec
+
+    return BENCHMARK_SCENES[ident] if isinstance(ident, str) else random_scene_spec(ident)
+
+
+def scene_dir_name(ident: int | str) -> str:
+    return f"scene_{ident}" if isinstance(ident, str) else f"seed_{ident:04d}"
 
 
 def describe(spec) -> str:
@@ -262,11 +280,11 @@ def registration_error(summary: dict, truth, store: Path) -> dict:
             "reg_inliers": float(reg.inlier_fraction)}
 
 
-def run_one(seed: int, workdir: Path, reuse: bool = False) -> dict:
+def run_one(seed: int | str, workdir: Path, reuse: bool = False) -> dict:
     """Generate, write, run and evaluate one scene (in a worker process); with ``reuse``, evaluate
     the run already in ``workdir`` again (the scene is regenerated in memory, not rerun)."""
     os.environ.setdefault("ARTITWIN_HOME", str(workdir / "home"))
-    from artitwin_core.synth import generate_scene, random_scene_spec, write_scene
+    from artitwin_core.synth import generate_scene, write_scene
     from flows.scene import run_scene_inline
     from schemas import PipelineConfig
 
@@ -275,7 +293,7 @@ def run_one(seed: int, workdir: Path, reuse: bool = False) -> dict:
     reuse = reuse and (run_dir / "summary.json").is_file() and previous.is_file()
     result: dict = {"seed": seed, "format": scene_format(seed)}
     t0 = time.perf_counter()
-    spec = random_scene_spec(seed)
+    spec = scene_spec(seed)
     scene = generate_scene(spec)
     if not reuse:
         write_scene(scene, workdir / "scene", fmt=scene_format(seed))
@@ -321,8 +339,8 @@ def run_one(seed: int, workdir: Path, reuse: bool = False) -> dict:
 # --- the driver -----------------------------------------------------------------------------------
 
 
-def _launch(seed: int, root: Path, timeout: float, threads: int, reuse: bool = False) -> dict:
-    workdir = root / f"seed_{seed:04d}"
+def _launch(seed: int | str, root: Path, timeout: float, threads: int, reuse: bool = False) -> dict:
+    workdir = root / scene_dir_name(seed)
     workdir.mkdir(parents=True, exist_ok=True)
     out = workdir / "result.json"
     env = {**os.environ, "OMP_NUM_THREADS": str(threads), "MKL_NUM_THREADS": str(threads),
@@ -343,7 +361,7 @@ def _launch(seed: int, root: Path, timeout: float, threads: int, reuse: bool = F
         why = f"timeout after {timeout:.0f} s" if code is None else f"worker exited with {code}"
         result = {"seed": seed, "format": scene_format(seed), "status": "crash", "error": f"{why}: {tail}"}
     result["wall_s"] = time.perf_counter() - t0
-    print(f"seed {seed}: {result['status']} in {result['wall_s']:.0f} s"
+    print(f"{'seed ' if isinstance(seed, int) else ''}{seed}: {result['status']} in {result['wall_s']:.0f} s"
           + (f" ({result.get('error', '')[:160]})" if result["status"] != "ok" else ""), flush=True)
     return result
 
@@ -448,7 +466,9 @@ def main() -> None:
     parser.add_argument("--timeout", type=float, default=3600.0, help="seconds before a scene's run is a crash")
     parser.add_argument("--reuse", action="store_true",
                         help="with --keep: evaluate the runs already kept there again instead of rerunning them")
-    parser.add_argument("--worker", type=int, default=None, help=argparse.SUPPRESS)
+    parser.add_argument("--named", nargs="*", default=None, metavar="NAME",
+                        help="run these scenes of BENCHMARK_SCENES instead of random ones (no names: all of them)")
+    parser.add_argument("--worker", type=scene_id, default=None, help=argparse.SUPPRESS)
     parser.add_argument("--workdir", type=Path, default=None, help=argparse.SUPPRESS)
     args = parser.parse_args()
     if args.worker is not None:
@@ -462,7 +482,15 @@ def main() -> None:
     root = args.keep if args.keep is not None else Path(tempfile.mkdtemp(prefix="artitwin-generalization-"))
     root.mkdir(parents=True, exist_ok=True)
     threads = max(1, (os.cpu_count() or 1) // args.jobs)
-    seeds = list(range(args.start_seed, args.start_seed + args.scenes))
+    if args.named is not None:
+        from artitwin_core.synth import BENCHMARK_SCENES
+
+        unknown = [n for n in args.named if n not in BENCHMARK_SCENES]
+        if unknown:
+            parser.error(f"unknown scene(s) {unknown}; BENCHMARK_SCENES holds {sorted(BENCHMARK_SCENES)}")
+        seeds = list(args.named or BENCHMARK_SCENES)
+    else:
+        seeds = list(range(args.start_seed, args.start_seed + args.scenes))
     t0 = time.perf_counter()
     with ThreadPoolExecutor(max_workers=args.jobs) as pool:
         results = list(pool.map(lambda s: _launch(s, root, args.timeout, threads, args.reuse), seeds))
@@ -471,7 +499,9 @@ def main() -> None:
         import shutil
 
         shutil.rmtree(root, ignore_errors=True)
-    print(f"\nGeneralization: {len(seeds)} random scenes (seeds {seeds[0]}-{seeds[-1]}), quick preset, "
+    which = (f"{len(seeds)} benchmark scenes" if args.named is not None
+             else f"{len(seeds)} random scenes (seeds {seeds[0]}-{seeds[-1]})")
+    print(f"\nGeneralization: {which}, quick preset, "
           f"{args.jobs} job(s), {wall:.0f} s")
     print_table([_table_row(r) for r in results])
     t = totals(results)
@@ -482,8 +512,8 @@ def main() -> None:
         print("candidate part fates: " + ", ".join(f"{k} {v}" for k, v in sorted(t["fates"].items())))
     crashes = [r for r in results if r["status"] != "ok"]
     for r in crashes:
-        print(f"\ncrash, seed {r['seed']} ({r.get('draw', '')}):\n  {r.get('error', '')}")
-    path = write_results("generalization", results, {"totals": t, "targets": TARGETS, "match_ratio": MATCH_RATIO,
+        print(f"\ncrash, {r['seed']} ({r.get('draw', '')}):\n  {r.get('error', '')}")
+    path = write_results("generalization_named" if args.named is not None else "generalization", results, {"totals": t, "targets": TARGETS, "match_ratio": MATCH_RATIO,
                                                      "jobs": args.jobs, "wall_s": wall, "seeds": seeds,
                                                      "preset": "quick"})
     print(f"\nwrote {path}")
