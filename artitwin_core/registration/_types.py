@@ -81,7 +81,11 @@ class RegistrationConfig:
             space it saw through).
         min_inlier_ratio: refuse when, of the dynamic points where the static recording looked,
             fewer than this fraction lie on its surfaces (the rest sit in space it saw empty:
-            the moved part and the hand, or a wrong placement).
+            the moved part and the hand, or a wrong placement). Half: more of the overlap
+            contradicting the static recording than agreeing with it. The moved parts alone
+            take a fifth to a third of the overlap on door+drawer scenes opened wide (seeds 7
+            and 8 of the generalization benchmark: 80 % and 72 % at the right placement), which
+            0.8 refused.
         rival_distance_m: the rival is the best hypothesis that places the dynamic points more
             than this RMS distance (metres) from the best one: another reading of the scene, not
             the best one slid a little along a wall.
@@ -120,7 +124,7 @@ class RegistrationConfig:
     free_space_margin_m: float = 0.05
     distinct_hypothesis_m: float = 0.1
     min_overlap: float = 0.3
-    min_inlier_ratio: float = 0.8
+    min_inlier_ratio: float = 0.5
     rival_distance_m: float = 0.5
     max_rival_ratio: float = 0.7
     min_constraint: float = 0.003
