@@ -211,6 +211,15 @@ class SettlePartsConfig(StageConfig):
         default=0.03, gt=0,
         description="Only frames in which the neighbour's motion moves the candidate this far beyond its closed frames (metres) can tell.",
     )
+    confirm_min_ratio: float = Field(
+        default=1.5, ge=1,
+        description="A candidate's own joint is confirmed by its depth when its points, moved back to the closed state by it, lie "
+        "at least this many times closer to its closed surface than held still...",
+    )
+    confirm_min_margin_m: float = Field(
+        default=0.01, ge=0,
+        description="... and at least this much closer (metres). An unconfirmed joint counts as no joint of its own.",
+    )
     same_axis_deg: float = Field(default=10.0, gt=0, description="Two fitted joints are one when their axes are this close, degrees...")
     same_line_m: float = Field(default=0.05, gt=0, description="... their lines (rotations) pass this close at the candidate, metres...")
     same_state_frac: float = Field(

@@ -51,6 +51,13 @@ class SettleConfig:
             it did not move while its neighbour did).
         min_discrimination_m: only frames in which the part's motion moves the candidate's points
             at least this far (median, metres) beyond the closed frames' can tell.
+        confirm_min_ratio, confirm_min_margin_m: a candidate's own joint is confirmed by its
+            depth when its points, moved back to the closed state by that joint, lie at least
+            this many times and this much (metres) closer to its closed surface than held still
+            (the test of ``merge_max_misfit_m``, without its absolute bound: a wide door's
+            interior and edge, seen once it is open, sit a few centimetres off its front).
+            Unconfirmed, it counts as no joint of its own: a planar patch "turning" in its own
+            plane agrees with its depth held still as well as moved.
         same_axis_deg, same_line_m: two fitted joints are the same joint when their axes are this
             close (degrees) and, for rotations, their lines pass this close at the candidate (metres).
         same_state_frac, same_state_floor: ... and their states agree within this fraction of the
@@ -65,6 +72,8 @@ class SettleConfig:
     merge_max_misfit_m: float = 0.02
     merge_min_ratio: float = 2.0
     min_discrimination_m: float = 0.03
+    confirm_min_ratio: float = 1.5
+    confirm_min_margin_m: float = 0.01
     same_axis_deg: float = 10.0
     same_line_m: float = 0.05
     same_state_frac: float = 0.15
@@ -166,11 +175,37 @@ def settle_parts(
             kept[kept.index(twin)] = lab
         decided[small] = _fate(cands[small], "merged", f"the same joint as candidate {cands[big].index} and moving "
                                f"with it ({cands[small].tracks} tracks against {cands[big].tracks})", into=cands[big])
+    # A joint its own depth does not confirm (its points, moved back by it, agree with its closed
+    # surface no better than held still) is no motion of its own: a planar patch "turning" in its
+    # plane, a fit to drifting tracks. It is treated below as a candidate with no joint.
+    unconfirmed: dict[int, str] = {}
+    for lab in list(kept):
+        c = cands[lab]
+        fit = _misfits(c, c.joint, cfg)
+        if fit is not None and not (fit[1] >= cfg.confirm_min_ratio * fit[0] and fit[1] - fit[0] >= cfg.confirm_min_margin_m):
+            kept.remove(lab)
+            unconfirmed[lab] = (f"its depth does not confirm the {c.joint.joint_type} joint fitted to its {c.tracks} tracks "
+                                f"({1e3 * fit[0]:.0f} mm from its closed surface moved back by it, {1e3 * fit[1]:.0f} mm held still)")
+    # A piece of a bigger part fitted with a joint of its own (a strip along a door's edge): merged
+    # when the bigger neighbour's motion explains its depth too. One joint explains both; two would
+    # export a spurious link. Smallest first, into a neighbour with more tracks that is still kept.
+    for lab in sorted(kept, key=lambda k: cands[k].tracks):
+        c = cands[lab]
+        for k in sorted(kept, key=lambda k: -cands[k].tracks):
+            if k == lab or cands[k].tracks <= c.tracks or not _adjacent(part, k, lab, cfg):
+                continue
+            fit = _misfits(c, cands[k].joint, cfg)
+            if fit is not None and _explains(fit, cfg):
+                kept.remove(lab)
+                decided[lab] = _fate(c, "merged", f"candidate {cands[k].index}'s motion explains its depth as well as its "
+                                     f"own {c.joint.joint_type} joint ({1e3 * fit[0]:.0f} mm from its closed surface moved "
+                                     f"back with it, {1e3 * fit[1]:.0f} mm held still): one part, not two", into=cands[k])
+                break
     # No joint of its own: merged into the kept neighbour whose motion explains its depth, or dropped.
     for lab, c in cands.items():
         if lab in decided or lab in kept:
             continue
-        why = _no_joint_reason(c, earlier_by_label.get(lab))
+        why = unconfirmed.get(lab) or _no_joint_reason(c, earlier_by_label.get(lab))
         decided[lab] = _explain_or_drop(c, why, [cands[k] for k in kept if _adjacent(part, k, lab, cfg)], cfg)
     return _resolve(cands, decided, kept, earlier, n_labels)
 
@@ -276,11 +311,17 @@ def _explain_or_drop(c: _Candidate, why: str, neighbours: list[_Candidate], cfg:
     n, (moving, still) = min(tests, key=lambda nm: nm[1][0])
     mm = (f"{1e3 * moving:.0f} mm from its closed surface moved back with candidate {n.index}, "
           f"{1e3 * still:.0f} mm held still")
-    if moving <= cfg.merge_max_misfit_m and cfg.merge_min_ratio * moving <= still:
+    if _explains((moving, still), cfg):
         return _fate(c, "merged", f"{why}; candidate {n.index}'s motion explains its depth ({mm})", into=n)
     if still <= cfg.merge_max_misfit_m and cfg.merge_min_ratio * still <= moving:
         return _fate(c, "dropped", f"{why}; it did not move while its neighbour did ({mm})")
     return _fate(c, "dropped", f"{why}; no kept part's motion explains its depth ({mm})")
+
+
+def _explains(fit: tuple[float, float], cfg: SettleConfig) -> bool:
+    """Whether a motion's misfits ``(moved back, held still)`` (:func:`_misfits`) say it moved ``c``."""
+    moving, still = fit
+    return moving <= cfg.merge_max_misfit_m and cfg.merge_min_ratio * moving <= still
 
 
 def _misfits(c: _Candidate, joint: Joint, cfg: SettleConfig) -> tuple[float, float] | None:

@@ -116,3 +116,27 @@ def test_the_stage_config_is_the_core_config():
 
     core = {f.name: f.default for f in fields(SettleConfig)}
     assert {name: info.default for name, info in SettlePartsConfig.model_fields.items()} == core
+
+
+def test_a_piece_with_its_own_joint_merges_and_an_unconfirmed_joint_drops(drawer):
+    """The strip along the drawer fitted with a joint of its own (the drawer's, 20 deg off) is a
+    piece of the drawer: the drawer's motion explains its depth, so one part, not two. The ring of
+    static surface given a joint (a turn about the front's normal, which its depth agrees with as
+    well held still) has no motion its depth confirms: dropped, not exported as a link."""
+    from artitwin_core.geometry import axis_angle_to_matrix
+
+    scene = drawer
+    masks = _candidates(scene)
+    truth = scene.truth
+    slide = truth.joints[0]
+    tilted = replace(slide, axis=axis_angle_to_matrix(np.array([0.0, 1.0, 0.0]), np.radians(20.0)) @ slide.axis)
+    span = float(np.max(np.abs(slide.q)))
+    in_plane = replace(slide, joint_type="revolute", axis=np.array([0.0, 0.0, 1.0]),
+                       pivot=np.array([0.0, 0.3, 0.0]), q=0.5 * np.asarray(slide.q) / span)
+    decision = settle_parts(scene.dynamic, masks, truth.canonical_from_dynamic_session,
+                            {1: slide, 2: tilted, 3: in_plane}, tracks={1: 200, 2: 40, 3: 60})
+    fates = {f.candidate: f for f in decision.fates}
+    assert decision.kept_labels == (1,), decision.fates
+    assert (fates[1].fate, fates[1].into, fates[1].part) == ("merged", 0, 0), fates[1]
+    assert "one part, not two" in fates[1].reason
+    assert fates[2].fate == "dropped" and "does not confirm" in fates[2].reason, fates[2]
