@@ -64,7 +64,7 @@ def register_dynamic(static: CaptureArtifact, dynamic: CaptureArtifact, config: 
     )
 
 
-@stage(name="part_masks", version=10, config=PartMasksConfig, output=MaskSequenceArtifact)
+@stage(name="part_masks", version=11, config=PartMasksConfig, output=MaskSequenceArtifact)
 def label_parts(
     static: CaptureArtifact,
     static_poses: CameraPoses,

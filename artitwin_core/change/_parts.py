@@ -52,6 +52,11 @@ class PartConfig:
             counts as this distance (metres), so neighbouring parts that open at different times
             (a door above a drawer) come out as two parts; 0 clusters in space only.
         min_part_voxels: smaller clusters are ignored (noise at depth edges).
+        min_occluded_frames: when no canonical surface vanished, a part may have moved only
+            towards the camera (a drawer pulled out straight at a close-up camera hides its
+            closed front and reveals nothing behind it); then a voxel hidden by something nearer
+            in this many frames is a candidate's closed surface. The hand hides surface too, but
+            no motion of that surface explains what is seen, and the candidate is dropped.
         sample_m: spacing of the part's surface samples (metres).
         max_rotation_rad, max_translation_m: range of the door / drawer hypotheses.
         support_distance_m: an observed point this close (3D, plus 5 mm per m^2 of depth)
@@ -121,6 +126,7 @@ class PartConfig:
     cluster_eps_m: float = 0.05
     onset_m_per_s: float = 0.15
     min_part_voxels: int = 60
+    min_occluded_frames: int = 4
     sample_m: float = 0.01
     max_rotation_rad: float = 2.0
     max_translation_m: float = 0.7
@@ -224,19 +230,31 @@ def _to_world(view: FrameView, depth: np.ndarray, mask: np.ndarray) -> np.ndarra
 
 
 def find_moved_parts(views: list[FrameView], config: PartConfig | None = None) -> list[tuple[np.ndarray, int]]:
-    """Closed surfaces of the parts that moved: canonical surface seen vanished in several frames.
+    """Closed surfaces of the parts that moved: canonical surface seen vanished in several frames;
+    where none vanished, canonical surface hidden by something nearer in several frames
+    (``min_occluded_frames``).
 
     Returns:
         per part, best first in onset order: closed surface samples ``[N, 3]`` (canonical frame,
         metres) and the onset frame index.
     """
     cfg = config or PartConfig()
+    parts = _changed_surfaces(views, cfg, nearer=False)
+    if not parts and cfg.min_occluded_frames > 0:
+        parts = _changed_surfaces(views, cfg, nearer=True)
+    return parts
+
+
+def _changed_surfaces(views: list[FrameView], cfg: PartConfig, nearer: bool) -> list[tuple[np.ndarray, int]]:
+    """:func:`find_moved_parts` for canonical surface seen vanished (observed farther than
+    rendered), or with ``nearer``, hidden by something nearer."""
     vox = cfg.vanish_voxel_m
     keys, frames, points = [], [], []
     kernel = np.ones((2 * cfg.vanish_opening_px + 1,) * 2, np.uint8)
     for t, v in enumerate(views):
         diff = v.rendered_depth - v.observed_depth
-        farther = np.isfinite(diff) & (diff < -depth_tolerance(v.rendered_depth, cfg.change))
+        tolerance = depth_tolerance(v.rendered_depth, cfg.change)
+        farther = np.isfinite(diff) & ((diff > tolerance) if nearer else (diff < -tolerance))
         if cfg.vanish_opening_px > 0:
             # Opening drops thin strips along depth edges, where small pose errors look like change;
             # it also drops the thin hole a drawer seen head-on leaves, so it is off by default and
@@ -257,7 +275,7 @@ def find_moved_parts(views: list[FrameView], config: PartConfig | None = None) -
     # Count distinct frames per voxel.
     pairs = np.unique(np.concatenate([keys_all, frames_all[:, None]], 1), axis=0)
     vkeys, inv_pairs, counts = np.unique(pairs[:, :3], axis=0, return_inverse=True, return_counts=True)
-    good = counts >= cfg.min_vanish_frames
+    good = counts >= (cfg.min_occluded_frames if nearer else cfg.min_vanish_frames)
     if good.sum() < cfg.min_part_voxels:
         return []
     first_frame = np.full(len(vkeys), np.iinfo(np.int64).max)
