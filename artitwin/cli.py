@@ -87,7 +87,11 @@ def _print_summary(summary: dict[str, Any], out: Path | None) -> None:
 def _run_scene(scene: Path, out: Path, config, store: str | None, use_prefect: bool) -> dict[str, Any]:
     if not scene.exists():
         _fail(f"scene folder {scene} does not exist")
-    with console.status(f"running stages on {scene} ..."):
+    from flows._progress import terminal_sink
+
+    # A progress bar on a terminal; one line per stage and periodic step counts otherwise (logs, CI).
+    console.print(f"running stages on {scene} ...")
+    with terminal_sink(sys.stderr):
         if use_prefect:
             from flows.scene import reconstruct_scene
 

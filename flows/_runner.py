@@ -15,7 +15,7 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any, Protocol
 
-from artitwin_core import ArtiTwinError, TransientError
+from artitwin_core import ArtiTwinError, TransientError, progress
 from infra.store import ArtifactStore, library_versions, manifest_key, stage_key
 from schemas import Artifact, StageConfig
 from tasks import STAGES, Stage
@@ -117,7 +117,8 @@ def run_stage(
                 args[name] = Path(ref.path)
             else:
                 args[name] = store.get(ref.key, _input_type(stage, name))
-        out = stage.fn(**args, config=config)
+        with progress(f"{stage.name}[{label}]" if label else stage.name):
+            out = stage.fn(**args, config=config)
         if not isinstance(out, stage.output_type):
             raise TypeError(f"stage {stage.name!r} returned {type(out).__name__}, expected {stage.output_type.__name__}")
         return out

@@ -11,7 +11,7 @@ from prefect.artifacts import create_markdown_artifact
 from prefect.futures import PrefectFuture
 from prefect.tasks import exponential_backoff
 
-from artitwin_core import InputError, TransientError
+from artitwin_core import InputError, TransientError, add_sink
 from flows._env import default_store_url
 from flows._pipeline import (
     SceneFailed,
@@ -22,11 +22,15 @@ from flows._pipeline import (
     write_exports,
     write_summary,
 )
+from flows._progress import PrefectSink
 from flows._runner import StageFailure, StageRun, run_stage, skipped
 from flows._runs import rerun_effects
 from infra.store import ArtifactStore, StoreError
 from schemas import DiagnosisReport, PipelineConfig, StageConfig, StageReport
 from tasks import STAGES
+
+# Loops with steps inside a stage's task run show as progress artifacts in the Prefect UI.
+add_sink(PrefectSink())
 
 # Errors worth retrying: storage hiccups and lock contention. Bad input and bugs are not.
 TRANSIENT = (TransientError, ConnectionError, TimeoutError)

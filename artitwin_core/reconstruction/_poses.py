@@ -26,6 +26,7 @@ from pathlib import Path
 
 import numpy as np
 
+from artitwin_core import progress
 from artitwin_core.capture import Capture
 from artitwin_core.geometry import invert_se3
 from artitwin_core.reconstruction._config import PoseRefineConfig
@@ -142,8 +143,10 @@ def refine_poses(capture: Capture, config: PoseRefineConfig = PoseRefineConfig()
     except ImportError:
         return _fallback(capture, "pycolmap is not installed (pip install pycolmap).")
     try:
-        with tempfile.TemporaryDirectory(prefix="artitwin-colmap-") as tmp:
-            return _refine(capture, config, pycolmap, Path(tmp))
+        with tempfile.TemporaryDirectory(prefix="artitwin-colmap-") as tmp, progress(
+            "pose refinement (features, matches, triangulate and adjust)", total=2 + config.iterations
+        ) as report:
+            return _refine(capture, config, pycolmap, Path(tmp), report)
     except Exception as exc:  # noqa: BLE001 -- COLMAP failures must never stop the pipeline
         log.warning("pose refinement failed: %s", exc)
         return _fallback(capture, f"COLMAP failed ({type(exc).__name__}: {exc}).")
@@ -178,7 +181,7 @@ def undistort_pixels(uv: np.ndarray, intrinsics: np.ndarray, k, iterations: int 
     return np.stack([intrinsics[:, 0] * x + intrinsics[:, 2], intrinsics[:, 1] * y + intrinsics[:, 3]], 1)
 
 
-def _refine(capture: Capture, config: PoseRefineConfig, pycolmap, tmp: Path) -> PoseRefinement:
+def _refine(capture: Capture, config: PoseRefineConfig, pycolmap, tmp: Path, report) -> PoseRefinement:
     from PIL import Image
 
     prev_level = pycolmap.logging.minloglevel
@@ -205,6 +208,7 @@ def _refine(capture: Capture, config: PoseRefineConfig, pycolmap, tmp: Path) -> 
             db_path, image_dir, image_names=names, camera_mode=pycolmap.CameraMode.PER_IMAGE,
             reader_options=reader, extraction_options=extraction, device=pycolmap.Device.cpu,
         )  # fmt: skip
+        report.advance(info=f"{t_frames} frames")
         matching = pycolmap.FeatureMatchingOptions()
         matching.num_threads = config.num_threads
         matching.use_gpu = False
@@ -217,6 +221,7 @@ def _refine(capture: Capture, config: PoseRefineConfig, pycolmap, tmp: Path) -> 
                 db_path, matching_options=matching, pairing_options=pairing, device=pycolmap.Device.cpu
             )
 
+        report.advance()
         db = pycolmap.Database.open(db_path)
         try:
             verified = db.num_verified_image_pairs()
@@ -231,6 +236,7 @@ def _refine(capture: Capture, config: PoseRefineConfig, pycolmap, tmp: Path) -> 
             if len(tracks.points) < 3 * config.min_track_points:
                 return _fallback(capture, f"COLMAP triangulated only {len(tracks.points)} points (low texture?).")
             poses, observations, rms_px = adjust_with_depth(capture, poses, tracks, config, distortion)
+            report.advance(info=f"{len(tracks.points)} points")
         refined_raw = poses
         usable = observations >= config.min_track_points
         if usable.sum() < max(3, config.min_refined_frac * t_frames):

@@ -17,6 +17,7 @@ from dataclasses import dataclass, field
 import numpy as np
 import torch
 
+from artitwin_core import progress
 from artitwin_core.capture import Capture
 from artitwin_core.gaussians import LABEL_BACKGROUND, GaussianParams, rasterize
 from artitwin_core.geometry import invert_se3
@@ -400,10 +401,13 @@ def train(
     """
     end = config.steps if until is None else min(until, config.steps)
     start = time.perf_counter()
-    while state.step < end:
-        train_step(state, views, config)
-        if callback is not None:
-            callback(state)
-        if time_budget_s is not None and time.perf_counter() - start > time_budget_s:
-            break
+    with progress("3DGS training", total=end) as report:
+        report.set(state.step)
+        while state.step < end:
+            train_step(state, views, config)
+            report.advance(info=f"{state.num_gaussians} Gaussians")
+            if callback is not None:
+                callback(state)
+            if time_budget_s is not None and time.perf_counter() - start > time_budget_s:
+                break
     return state

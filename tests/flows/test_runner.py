@@ -114,3 +114,17 @@ def test_plan_knows_every_key_before_running_and_remembers_failures(tmp_path, fo
     assert plan.submit("toy_measure", ToyConfig(), {"recording": raw}, "").status == "cached"
     assert store.failure(a.key) is None
     assert f"failures/{a.key}.json" in store.gc(grace_s=0)
+
+
+def test_each_stage_run_is_reported_as_progress_lines(tmp_path, folder):
+    """Output that is not a terminal (logs, CI, workers) gets a line when a stage starts and when it ends."""
+    import io
+
+    from flows._progress import LineSink
+
+    stream = io.StringIO()
+    with LineSink(stream):
+        _chain(ArtifactStore(tmp_path / "store"), folder)
+    lines = stream.getvalue().splitlines()
+    assert [line.split(" ", 1)[1].split(" in ")[0] for line in lines] == [
+        "toy_measure ...", "toy_measure done", "toy_double ...", "toy_double done"]
