@@ -12,13 +12,36 @@ from schemas._reconstruct import PoseRefineStageConfig, ReconstructConfig
 
 
 class IngestConfig(StageConfig):
-    """How a recording is read into a capture artifact."""
+    """How a recording is read into a capture artifact: which frames, at what RGB resolution.
+
+    The working resolution and the keyframes are chosen here, before the images are decoded, so
+    a long recording at a phone's native resolution never sits in memory whole (the presets set
+    them for the hardware: ``PipelineConfig.preset``)."""
 
     stride: int = Field(default=1, ge=1, description="Keep every stride-th frame.")
     max_frames: int | None = Field(default=None, ge=1, description="Keep at most this many frames (after stride); None = all.")
     rgb_max_width: int | None = Field(
         default=None, ge=16, description="Downscale RGB to at most this width in pixels (intrinsics scaled to match); None = keep."
     )
+    rgb_max_side: int | None = Field(
+        default=None, ge=16,
+        description="The working resolution: downscale RGB so its longer side is at most this many pixels, whatever "
+        "the file holds (each frame as it is decoded; intrinsics scaled to match); None = the file's resolution.",
+    )
+    keyframes_max: int | None = Field(
+        default=None, ge=2,
+        description="A recording with more frames (after stride and max_frames) keeps at most this many keyframes, "
+        "chosen from its poses and depth before any image is decoded: views spread evenly over the sweep, frames "
+        "kept densely where the scene moves, frames that see what no other does (artitwin_core.capture."
+        "select_keyframes). None = every frame.",
+    )
+    keyframe_view_step: float = Field(
+        default=0.05, gt=0, description="Keyframes: weight of view change, camera travel over the median depth plus rotation (radians)."
+    )
+    keyframe_change_step: float = Field(
+        default=0.03, gt=0, description="Keyframes: weight of scene change, the share of depth pixels that moved since the last keyframe."
+    )
+    keyframe_max_gap_s: float = Field(default=1.0, gt=0, description="Keyframes: at most this many seconds between keyframes (before the budget widens it).")
 
 
 class CaptureCheckConfig(StageConfig):
