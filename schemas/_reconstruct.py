@@ -53,6 +53,11 @@ class ReconstructConfig(StageConfig):
     max_gaussians: int = Field(default=60_000, ge=1000, description="Densification stops adding beyond this many Gaussians.")
     grad_threshold: float = Field(default=2e-4, gt=0, description="Densification threshold on the mean NDC gradient norm.")
     backend: str = Field(default="auto", description="Rasterizer backend: auto, cpu or cuda.")
+    train_max_side: int | None = Field(
+        default=None, ge=16,
+        description="Train on the frames downscaled to at most this many pixels on the long side (a CPU budget: a "
+        "step's cost grows with the pixels); None = the capture's resolution. Evaluation stays at the capture's.",
+    )
     seed: int = Field(default=0, description="Seed of the view order and split samples.")
     sensor_effects: list[Literal["exposure_white_balance", "vignetting", "depth_scale_offset"]] = Field(
         default_factory=list,

@@ -54,6 +54,7 @@ def core_config(config: ArticulateConfig) -> ArticulationConfig:
         appearance_knots=config.appearance_knots,
         lr_means=config.lr_means,
         backend=config.backend,
+        max_side=config.train_max_side,
         seed=config.seed,
     )
 

@@ -52,6 +52,7 @@ def train_config(config: ReconstructConfig) -> TrainConfig:
         max_gaussians=config.max_gaussians,
         grad_threshold=config.grad_threshold,
         backend=config.backend,
+        max_side=config.train_max_side,
         seed=config.seed,
         sensor_effects=tuple(config.sensor_effects),
     )

@@ -25,7 +25,7 @@ from artitwin_core.articulation._optimize import (
     uncovered_background,
 )
 from artitwin_core.articulation._partition import partition_gaussians, surface_hits
-from artitwin_core.capture import Capture
+from artitwin_core.capture import Capture, downscale_rgb
 from artitwin_core.gaussians import (
     LABEL_BACKGROUND,
     LABEL_INTERIOR,
@@ -34,7 +34,7 @@ from artitwin_core.gaussians import (
     resolve_backend,
 )
 from artitwin_core.joints import Joint
-from artitwin_core.masks import MaskSequence
+from artitwin_core.masks import MaskSequence, downscale_masks
 from artitwin_core.reconstruction import make_views, scene_extent, split_frames
 
 
@@ -179,6 +179,9 @@ def articulate(
     joints = list(joints)
     dyn_poses = np.asarray(dynamic_world_from_camera, np.float64)
     _check_inputs(dynamic, dyn_poses, masks, joints)
+    if config.max_side is not None:  # the training resolution: captures and masks downscaled together
+        static, dynamic = downscale_rgb(static, config.max_side), downscale_rgb(dynamic, config.max_side)
+        masks = downscale_masks(masks, dynamic.rgb_size)
     backend = resolve_backend(config.backend)  # every tensor below lives on its device
     config, dev = replace(config, backend=backend.name), backend.device
     seconds: dict[str, float] = {}

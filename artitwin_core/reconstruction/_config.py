@@ -105,6 +105,9 @@ class TrainConfig:
         opacity_reset_value: opacity is clamped to this at a reset.
         background: RGB in [0, 1] behind everything.
         backend: rasterizer backend (``"auto"``, ``"cpu"``, ``"cuda"``).
+        max_side: train on the RGB frames downscaled to at most this many pixels on the long
+            side (None: as the capture holds them); a CPU budget: a step's cost grows with the
+            pixels. The model is still evaluated and rendered at any resolution.
         seed: random view order and split samples.
         sensor_effects: camera effects learned with the Gaussians (``_sensor.SENSOR_EFFECTS``:
             exposure_white_balance, vignetting, depth_scale_offset); empty = an ideal camera.
@@ -136,6 +139,7 @@ class TrainConfig:
     opacity_reset_value: float = 0.01
     background: tuple[float, float, float] = (0.0, 0.0, 0.0)
     backend: str = "auto"
+    max_side: int | None = None
     seed: int = 0
     sensor_effects: tuple[str, ...] = ()
     lr_sensor: float = 0.01

@@ -8,7 +8,7 @@ from dataclasses import dataclass, replace
 
 import numpy as np
 
-from artitwin_core.capture import Capture
+from artitwin_core.capture import Capture, downscale_rgb
 from artitwin_core.gaussians import GaussianParams, resolve_backend
 from artitwin_core.reconstruction._config import InitConfig, ReconstructionConfig, TrainConfig, split_frames
 from artitwin_core.reconstruction._evaluate import EvalResult, evaluate_views
@@ -53,11 +53,13 @@ def start_training(
     init: InitConfig,
     config: TrainConfig,
 ) -> tuple[TrainState, TrainViews, TrainConfig]:
-    """Seed Gaussians from the depth of ``frames`` and put the state and the views on the device
-    ``config.backend`` resolves to (``resolve_backend``: ``"auto"`` is CUDA with gsplat when
-    present). Returns ``(state, views, config)`` with ``config.backend`` resolved, for ``train``."""
+    """Seed Gaussians from the depth of ``frames`` and put the state and the views (at the
+    training resolution, ``config.max_side``) on the device ``config.backend`` resolves to
+    (``resolve_backend``: ``"auto"`` is CUDA with gsplat when present). Returns ``(state, views,
+    config)`` with ``config.backend`` resolved, for ``train``."""
     backend = resolve_backend(config.backend)
     config = replace(config, backend=backend.name)
+    capture = downscale_rgb(capture, config.max_side)
     params0 = init_gaussians(capture, world_from_camera, frames, init, config.sh_degree)
     views = make_views(capture, world_from_camera, frames, init.min_confidence, device=backend.device)
     state = TrainState.from_params(params0, scene_extent(world_from_camera[frames]), device=backend.device)

@@ -32,15 +32,18 @@ from artitwin_core.reconstruction import (
 from tests.gaussians._fake_gsplat import CALLS, _fake_rasterization
 
 
-def train_both(scene, backend: str, steps: int, phase_steps: tuple[int, int], max_gaussians: int) -> dict:
-    """Stage I then stage IV of ``scene`` on ``backend`` (true poses, masks and joints; seed 0)."""
+def train_both(
+    scene, backend: str, steps: int, phase_steps: tuple[int, int], max_gaussians: int, max_side: tuple = (None, None)
+) -> dict:
+    """Stage I then stage IV of ``scene`` on ``backend`` (true poses, masks and joints; seed 0), each
+    trained at most ``max_side`` pixels on the long side."""
     cap = scene.static
     truth = scene.truth
     static = dataclasses.replace(cap, world_from_camera=truth.static_world_from_camera)
     config = ReconstructionConfig(
         init=InitConfig(max_points=max_gaussians // 2),
         poses=PoseRefineConfig(enabled=False),
-        train=TrainConfig.with_schedule(steps, max_gaussians=max_gaussians, backend=backend),
+        train=TrainConfig.with_schedule(steps, max_gaussians=max_gaussians, backend=backend, max_side=max_side[0]),
     )
     rec = reconstruct(static, config)
     masks = MaskSequence(part=truth.part_masks, hand=truth.hand_masks, score=np.ones(len(truth.part_masks), np.float32))
@@ -48,7 +51,7 @@ def train_both(scene, backend: str, steps: int, phase_steps: tuple[int, int], ma
         rec.params, static, static.world_from_camera, scene.dynamic, truth.dynamic_world_from_camera, masks,
         truth.joints,
         ArticulationConfig(phase1_steps=phase_steps[0], phase2_steps=phase_steps[1], backend=backend,
-                           seed_max_points=500, seed_background_max_points=500),
+                           seed_max_points=500, seed_background_max_points=500, max_side=max_side[1]),
     )  # fmt: skip
     return {"stage_i_losses": rec.losses, "stage_i_psnr": float(rec.evaluation.summary()["psnr_db"]),
             "stage_iv_losses": result.losses, "stage_iv_psnr": result.psnr_holdout_db, "twin": result.params}
@@ -66,7 +69,8 @@ def test_auto_resolves_to_the_cpu_without_cuda():
 
 
 def test_training_runs_on_the_cpu(tiny_scene):
-    out = train_both(tiny_scene, "cpu", steps=24, phase_steps=(8, 4), max_gaussians=2000)
+    """On the CPU, at the CPU preset's reduced training resolutions (the tiny scene is 128x96)."""
+    out = train_both(tiny_scene, "cpu", steps=24, phase_steps=(8, 4), max_gaussians=2000, max_side=(96, 64))
     for key in ("stage_i_losses", "stage_iv_losses"):
         assert len(out[key]) > 0 and np.isfinite(out[key]).all()
     assert out["stage_i_losses"][-5:].mean() < out["stage_i_losses"][:5].mean()
