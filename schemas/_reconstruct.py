@@ -17,11 +17,19 @@ class PoseRefineStageConfig(StageConfig):
     """Refining the static recording's camera poses (COLMAP features + depth-aware bundle adjustment)."""
 
     enabled: bool = Field(default=True, description="False keeps the capture poses (corrections reported as None).")
-    max_features: int = Field(default=4096, ge=64, description="SIFT features per RGB frame.")
+    max_features: int | None = Field(
+        default=4096, ge=64,
+        description="SIFT features per RGB frame; None = scaled with the working resolution (4 sqrt(W H), 1024..8192).",
+    )
     exhaustive_max_frames: int = Field(
         default=80, ge=2, description="Match every frame pair up to this many frames; sequential matching beyond."
     )
     sequential_overlap: int = Field(default=10, ge=1, description="Sequential matching: frames matched with each frame.")
+    loop_closure_pairs: int = Field(
+        default=0, ge=0,
+        description="Sequential matching: each frame is also matched with up to this many frames outside its window whose "
+        "views overlap (by the capture poses): loop closures of a sweep that comes back.",
+    )
     prior_position_std_m: float = Field(
         default=0.05, gt=0, description="Std of the capture camera centres used as priors in bundle adjustment, metres."
     )
@@ -30,7 +38,10 @@ class PoseRefineStageConfig(StageConfig):
     max_correction_m: float = Field(default=0.15, gt=0, description="Larger corrections are rejected (frame kept), metres.")
     max_correction_deg: float = Field(default=8.0, gt=0, description="Larger rotation corrections are rejected, degrees.")
     num_threads: int = Field(
-        default=1, ge=1, description="CPU threads COLMAP and Ceres may use; 1 gives the same poses on every run."
+        default=1, ge=1, description="CPU threads COLMAP and Ceres may use to match and adjust; 1 gives the same poses on every run."
+    )
+    extraction_threads: int = Field(
+        default=1, ge=0, description="CPU threads extracting SIFT features (0 = every available core; the features are the same)."
     )
 
 

@@ -20,6 +20,7 @@ triangulation) falls back to the capture poses with a note; this never raises fo
 from __future__ import annotations
 
 import logging
+import os
 import tempfile
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -200,9 +201,9 @@ def _refine(capture: Capture, config: PoseRefineConfig, pycolmap, tmp: Path, rep
         reader.camera_model = model
         reader.camera_params = ",".join(f"{x:.10g}" for x in params[0])
         extraction = pycolmap.FeatureExtractionOptions()
-        extraction.num_threads = config.num_threads
+        extraction.num_threads = config.extraction_threads or (os.cpu_count() or 1)
         extraction.use_gpu = False
-        extraction.sift.max_num_features = config.max_features
+        extraction.sift.max_num_features = config.features_for(*capture.rgb_size)
         extraction.sift.peak_threshold = config.sift_peak_threshold
         pycolmap.extract_features(
             db_path, image_dir, image_names=names, camera_mode=pycolmap.CameraMode.PER_IMAGE,
@@ -214,6 +215,15 @@ def _refine(capture: Capture, config: PoseRefineConfig, pycolmap, tmp: Path, rep
         matching.use_gpu = False
         if t_frames <= config.exhaustive_max_frames:
             pycolmap.match_exhaustive(db_path, matching_options=matching, device=pycolmap.Device.cpu)
+        elif config.loop_closure_pairs > 0:
+            pairs = match_pairs(capture, config.sequential_overlap, config.loop_closure_pairs)
+            listing = tmp / "pairs.txt"
+            listing.write_text("".join(f"{names[i]} {names[j]}\n" for i, j in pairs))
+            pairing = pycolmap.ImportedPairingOptions()
+            pairing.match_list_path = str(listing)
+            pycolmap.match_image_pairs(
+                db_path, matching_options=matching, pairing_options=pairing, device=pycolmap.Device.cpu
+            )
         else:
             pairing = pycolmap.SequentialPairingOptions()
             pairing.overlap = config.sequential_overlap
@@ -282,6 +292,34 @@ def _refine(capture: Capture, config: PoseRefineConfig, pycolmap, tmp: Path, rep
         )
     finally:
         pycolmap.logging.minloglevel = prev_level
+
+
+def match_pairs(capture: Capture, overlap: int, loop_pairs: int, max_angle_deg: float = 30.0) -> list[tuple[int, int]]:
+    """Frame pairs ``(i, j)``, ``i < j``, to match in a long recording: each frame with the next
+    ``overlap`` frames, and with up to ``loop_pairs`` frames outside that window whose views
+    overlap most by the capture poses (optical axes within ``max_angle_deg``, centres closer than
+    the median depth): the loop closures of a sweep that comes back, found without a vocabulary tree.
+    """
+    t = capture.num_frames
+    pairs = {(i, j) for i in range(t) for j in range(i + 1, min(t, i + overlap + 1))}
+    if loop_pairs <= 0 or t <= overlap + 1:
+        return sorted(pairs)
+    depth = capture.depth[:, ::4, ::4]
+    with np.errstate(all="ignore"):
+        median = float(np.nanmedian(np.where(depth > 0, depth, np.nan))) if np.isfinite(depth).any() else 1.0
+    median = max(median if np.isfinite(median) else 1.0, 0.3)
+    centres = capture.world_from_camera[:, :3, 3]
+    axes = capture.world_from_camera[:, :3, 2]
+    dist = np.linalg.norm(centres[:, None] - centres[None], axis=-1) / median
+    cos = np.clip(axes @ axes.T, -1.0, 1.0)
+    score = dist + (1.0 - cos) * 10.0
+    far = np.abs(np.arange(t)[:, None] - np.arange(t)[None]) > overlap
+    ok = far & (cos >= np.cos(np.radians(max_angle_deg))) & (dist < 1.0)
+    for i in range(t):
+        cand = np.flatnonzero(ok[i])
+        for j in cand[np.argsort(score[i, cand])][:loop_pairs]:
+            pairs.add((min(i, int(j)), max(i, int(j))))
+    return sorted(pairs)
 
 
 @dataclass(frozen=True)
