@@ -6,10 +6,19 @@ itself is imported.
 
 from flows import _env  # noqa: F401  (must run before prefect is imported)
 from flows._pipeline import build_summary, scene_pipeline, write_summary
-from flows._runner import InlineExecutor, PlanExecutor, RawInput, StageRun, raw_input, run_stage
+from flows._runner import (
+    InlineExecutor,
+    ParallelExecutor,
+    PlanExecutor,
+    RawInput,
+    StageRun,
+    raw_input,
+    run_stage,
+)
 
 __all__ = [
     "InlineExecutor",
+    "ParallelExecutor",
     "PlanExecutor",
     "RawInput",
     "StageRun",

@@ -221,6 +221,25 @@ def collect_runs(ex: Executor, handles: dict[str, Any]) -> tuple[dict[str, Stage
     return runs, failures
 
 
+def finish_scene(
+    scene: str | Path, config: PipelineConfig, ex: Any, handles: Any, store: ArtifactStore, started: float,
+    out: str | Path | None, exports: bool = True,
+) -> dict[str, Any]:
+    """Wait for the stages, diagnose the static recording if the run failed before its diagnosis,
+    write ``summary.json`` (and with ``exports`` the export files and reports) under ``out``, and
+    return the summary; raises ``SceneFailed`` (holding the summary) when a stage failed."""
+    runs, failures = collect_runs(ex, handles)
+    diagnose_failed_run(config, ex, handles, runs, failures)
+    summary = build_summary(scene, store, runs, started, config, failures)
+    if out is not None:
+        if exports:
+            summary["exports"] = write_exports(store, runs, out)
+        write_summary(summary, out)
+    if summary["status"] == "failed":
+        raise SceneFailed(summary)
+    return summary
+
+
 def diagnose_failed_run(
     config: PipelineConfig, ex: Executor, handles: PipelineHandles, runs: dict[str, StageRun], failures: dict[str, StageFailure]
 ) -> None:
@@ -239,7 +258,10 @@ def diagnose_failed_run(
 
 def code_version() -> str:
     """Package version plus the git commit when run from a checkout (informational only)."""
-    version = metadata.version("artitwin")
+    try:
+        version = metadata.version("artitwin")
+    except metadata.PackageNotFoundError:  # run from a checkout that is not installed
+        version = "0+unknown"
     try:
         sha = subprocess.run(
             ["git", "rev-parse", "--short", "HEAD"],
