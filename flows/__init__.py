@@ -5,7 +5,7 @@ itself is imported.
 """
 
 from flows import _env  # noqa: F401  (must run before prefect is imported)
-from flows._pipeline import build_summary, scene_pipeline, write_summary
+from flows._pipeline import build_summary, gpu_available, hardware_preset, scene_pipeline, write_summary
 from flows._runner import (
     InlineExecutor,
     ParallelExecutor,
@@ -23,6 +23,8 @@ __all__ = [
     "RawInput",
     "StageRun",
     "build_summary",
+    "gpu_available",
+    "hardware_preset",
     "raw_input",
     "run_stage",
     "scene_pipeline",

@@ -44,6 +44,18 @@ from schemas import (
 SUMMARY_VERSION = 2
 
 
+def gpu_available() -> bool:
+    """True when the 3DGS stages would train on CUDA (a CUDA device and gsplat: ``backend="auto"``)."""
+    from artitwin_core.gaussians import resolve_backend
+
+    return resolve_backend("auto").is_cuda
+
+
+def hardware_preset(name: str) -> PipelineConfig:
+    """``PipelineConfig.preset(name)`` for this machine: the GPU budget when :func:`gpu_available`."""
+    return PipelineConfig.preset(name, gpu=gpu_available())
+
+
 class SceneFailed(ArtiTwinError):
     """A scene run in which a stage failed; ``summary`` is what was written (``status: failed``,
     the failed stage and its error, everything that completed, the static diagnosis if it ran)."""

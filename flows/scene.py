@@ -16,6 +16,7 @@ from flows._env import default_store_url
 from flows._pipeline import (
     SceneFailed,
     finish_scene,
+    hardware_preset,
     scene_pipeline,
 )
 from flows._progress import PrefectSink
@@ -144,7 +145,7 @@ def reconstruct_scene(
         SceneFailed: a stage failed; ``summary.json`` was written all the same.
     """
     started = time.time()
-    config = config or PipelineConfig()
+    config = config or hardware_preset("default")
     store_url = store or default_store_url()
     ex = PrefectExecutor(store_url)
     handles = scene_pipeline(scene, config, ex)
@@ -167,7 +168,7 @@ def run_scene_inline(
     started = time.time()
     st = ArtifactStore(store or default_store_url())
     ex = ParallelExecutor(st, workers) if workers > 1 else InlineExecutor(st)
-    config = config or PipelineConfig()
+    config = config or hardware_preset("default")
     try:
         return finish_scene(scene, config, ex, scene_pipeline(scene, config, ex), st, started, out)
     finally:
