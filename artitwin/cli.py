@@ -37,7 +37,9 @@ def _fail(message: str, code: int = 2) -> None:
 def _load_config(path: Path | None, preset: str = "default"):
     if path is None:
         try:
-            return PipelineConfig.preset(preset)
+            from flows import hardware_preset
+
+            return hardware_preset(preset)
         except ValueError as e:
             _fail(str(e))
     if not path.is_file():
@@ -87,7 +89,11 @@ def _print_summary(summary: dict[str, Any], out: Path | None) -> None:
 def _run_scene(scene: Path, out: Path, config, store: str | None, use_prefect: bool) -> dict[str, Any]:
     if not scene.exists():
         _fail(f"scene folder {scene} does not exist")
-    with console.status(f"running stages on {scene} ..."):
+    from flows._progress import terminal_sink
+
+    # A progress bar on a terminal; one line per stage and periodic step counts otherwise (logs, CI).
+    console.print(f"running stages on {scene} ...")
+    with terminal_sink(sys.stderr):
         if use_prefect:
             from flows.scene import reconstruct_scene
 
@@ -121,7 +127,7 @@ def run(
     scene: Annotated[Path, typer.Argument(help="Scene folder holding the static and dynamic recordings.")],
     out: Annotated[Path, typer.Option("--out", help="Where summary.json and exports go.")] = Path("out"),
     config: Annotated[Path | None, typer.Option("--config", help="Pipeline config (JSON or YAML).")] = None,
-    preset: Annotated[str, typer.Option("--preset", help="Config preset when no --config: default or quick.")] = "default",
+    preset: Annotated[str, typer.Option("--preset", help="Config preset when no --config: default (sized for this machine: CPU or GPU), quick or full.")] = "default",
     store: StoreOpt = None,
     prefect: Annotated[bool, typer.Option("--prefect/--no-prefect", help="Run as a Prefect flow (default).")] = True,
     effect: Annotated[

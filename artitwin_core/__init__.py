@@ -6,5 +6,6 @@ from private ``_module.py`` files.
 """
 
 from artitwin_core._errors import ArtiTwinError, InputError, TransientError
+from artitwin_core._progress import ProgressSink, ProgressTask, add_sink, progress, remove_sink
 
-__all__ = ["ArtiTwinError", "InputError", "TransientError"]
+__all__ = ["ArtiTwinError", "InputError", "ProgressSink", "ProgressTask", "TransientError", "add_sink", "progress", "remove_sink"]

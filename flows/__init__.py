@@ -5,15 +5,26 @@ itself is imported.
 """
 
 from flows import _env  # noqa: F401  (must run before prefect is imported)
-from flows._pipeline import build_summary, scene_pipeline, write_summary
-from flows._runner import InlineExecutor, PlanExecutor, RawInput, StageRun, raw_input, run_stage
+from flows._pipeline import build_summary, gpu_available, hardware_preset, scene_pipeline, write_summary
+from flows._runner import (
+    InlineExecutor,
+    ParallelExecutor,
+    PlanExecutor,
+    RawInput,
+    StageRun,
+    raw_input,
+    run_stage,
+)
 
 __all__ = [
     "InlineExecutor",
+    "ParallelExecutor",
     "PlanExecutor",
     "RawInput",
     "StageRun",
     "build_summary",
+    "gpu_available",
+    "hardware_preset",
     "raw_input",
     "run_stage",
     "scene_pipeline",

@@ -44,6 +44,18 @@ from schemas import (
 SUMMARY_VERSION = 2
 
 
+def gpu_available() -> bool:
+    """True when the 3DGS stages would train on CUDA (a CUDA device and gsplat: ``backend="auto"``)."""
+    from artitwin_core.gaussians import resolve_backend
+
+    return resolve_backend("auto").is_cuda
+
+
+def hardware_preset(name: str) -> PipelineConfig:
+    """``PipelineConfig.preset(name)`` for this machine: the GPU budget when :func:`gpu_available`."""
+    return PipelineConfig.preset(name, gpu=gpu_available())
+
+
 class SceneFailed(ArtiTwinError):
     """A scene run in which a stage failed; ``summary`` is what was written (``status: failed``,
     the failed stage and its error, everything that completed, the static diagnosis if it ran)."""
@@ -221,6 +233,25 @@ def collect_runs(ex: Executor, handles: dict[str, Any]) -> tuple[dict[str, Stage
     return runs, failures
 
 
+def finish_scene(
+    scene: str | Path, config: PipelineConfig, ex: Any, handles: Any, store: ArtifactStore, started: float,
+    out: str | Path | None, exports: bool = True,
+) -> dict[str, Any]:
+    """Wait for the stages, diagnose the static recording if the run failed before its diagnosis,
+    write ``summary.json`` (and with ``exports`` the export files and reports) under ``out``, and
+    return the summary; raises ``SceneFailed`` (holding the summary) when a stage failed."""
+    runs, failures = collect_runs(ex, handles)
+    diagnose_failed_run(config, ex, handles, runs, failures)
+    summary = build_summary(scene, store, runs, started, config, failures)
+    if out is not None:
+        if exports:
+            summary["exports"] = write_exports(store, runs, out)
+        write_summary(summary, out)
+    if summary["status"] == "failed":
+        raise SceneFailed(summary)
+    return summary
+
+
 def diagnose_failed_run(
     config: PipelineConfig, ex: Executor, handles: PipelineHandles, runs: dict[str, StageRun], failures: dict[str, StageFailure]
 ) -> None:
@@ -239,7 +270,10 @@ def diagnose_failed_run(
 
 def code_version() -> str:
     """Package version plus the git commit when run from a checkout (informational only)."""
-    version = metadata.version("artitwin")
+    try:
+        version = metadata.version("artitwin")
+    except metadata.PackageNotFoundError:  # run from a checkout that is not installed
+        version = "0+unknown"
     try:
         sha = subprocess.run(
             ["git", "rev-parse", "--short", "HEAD"],

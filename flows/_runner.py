@@ -9,13 +9,15 @@ from __future__ import annotations
 
 import json
 import os
+import threading
 import time
 import traceback
+from concurrent.futures import Future, ThreadPoolExecutor
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any, Protocol
 
-from artitwin_core import ArtiTwinError, TransientError
+from artitwin_core import ArtiTwinError, TransientError, progress
 from infra.store import ArtifactStore, library_versions, manifest_key, stage_key
 from schemas import Artifact, StageConfig
 from tasks import STAGES, Stage
@@ -117,7 +119,8 @@ def run_stage(
                 args[name] = Path(ref.path)
             else:
                 args[name] = store.get(ref.key, _input_type(stage, name))
-        out = stage.fn(**args, config=config)
+        with progress(f"{stage.name}[{label}]" if label else stage.name):
+            out = stage.fn(**args, config=config)
         if not isinstance(out, stage.output_type):
             raise TypeError(f"stage {stage.name!r} returned {type(out).__name__}, expected {stage.output_type.__name__}")
         return out
@@ -241,6 +244,60 @@ class InlineExecutor:
 
     def result(self, handle: StageRun | StageFailure) -> StageRun | StageFailure:
         return handle
+
+
+class ParallelExecutor:
+    """Runs stages in ``workers`` threads of this process as soon as their inputs are ready, no
+    Prefect involved: independent branches of a scene (the static 3DGS beside the dynamic
+    recording's registration, masks and tracks) overlap, as under Prefect's task runner.
+
+    Handles are futures; a stage whose input failed is skipped, as :class:`InlineExecutor` does
+    (``inline`` runs each stage, and may be replaced by another executor of the same kind, e.g. one
+    that times them). The stages' numerics release the GIL for most of their time (torch, numba,
+    OpenCV, COLMAP)."""
+
+    def __init__(self, store: ArtifactStore, workers: int = 2) -> None:
+        self.inline: Any = InlineExecutor(store)
+        self.pool = ThreadPoolExecutor(max_workers=max(1, int(workers)), thread_name_prefix="stage")
+
+    def submit(self, stage_name: str, config: StageConfig, inputs: dict[str, Any], label: str) -> Future:
+        deps = [v for v in inputs.values() if isinstance(v, Future)]
+
+        def run() -> StageRun | StageFailure:
+            ready = {k: v.result() if isinstance(v, Future) else v for k, v in inputs.items()}
+            return self.inline.submit(stage_name, config, ready, label)
+
+        if not deps:
+            return self.pool.submit(run)
+        # A stage waits for its inputs without holding a worker: it is queued when the last one ends.
+        out: Future = Future()
+        left = [len(deps)]
+        lock = threading.Lock()
+
+        def one_done(_done: Future) -> None:
+            with lock:
+                left[0] -= 1
+                if left[0]:
+                    return
+            self.pool.submit(run).add_done_callback(lambda f: _relay(f, out))
+
+        for d in deps:
+            d.add_done_callback(one_done)
+        return out
+
+    def result(self, handle: Future) -> StageRun | StageFailure:
+        return handle.result()
+
+    def shutdown(self) -> None:
+        self.pool.shutdown(wait=True)
+
+
+def _relay(done: Future, out: Future) -> None:
+    exc = done.exception()
+    if exc is not None:
+        out.set_exception(exc)
+    else:
+        out.set_result(done.result())
 
 
 def skipped(stage_name: str, label: str, cause: StageFailure) -> StageFailure:

@@ -11,22 +11,23 @@ from prefect.artifacts import create_markdown_artifact
 from prefect.futures import PrefectFuture
 from prefect.tasks import exponential_backoff
 
-from artitwin_core import InputError, TransientError
+from artitwin_core import InputError, TransientError, add_sink
 from flows._env import default_store_url
 from flows._pipeline import (
     SceneFailed,
-    build_summary,
-    collect_runs,
-    diagnose_failed_run,
+    finish_scene,
+    hardware_preset,
     scene_pipeline,
-    write_exports,
-    write_summary,
 )
+from flows._progress import PrefectSink
 from flows._runner import StageFailure, StageRun, run_stage, skipped
 from flows._runs import rerun_effects
 from infra.store import ArtifactStore, StoreError
 from schemas import DiagnosisReport, PipelineConfig, StageConfig, StageReport
 from tasks import STAGES
+
+# Loops with steps inside a stage's task run show as progress artifacts in the Prefect UI.
+add_sink(PrefectSink())
 
 # Errors worth retrying: storage hiccups and lock contention. Bad input and bugs are not.
 TRANSIENT = (TransientError, ConnectionError, TimeoutError)
@@ -131,25 +132,6 @@ class PrefectExecutor:
             return StageFailure.of(handle.stage, handle.label, e)
 
 
-def finish_scene(
-    scene: str | Path, config: PipelineConfig, ex: Any, handles: Any, store: ArtifactStore, started: float,
-    out: str | Path | None, exports: bool = True,
-) -> dict[str, Any]:
-    """Wait for the stages, diagnose the static recording if the run failed before its diagnosis,
-    write ``summary.json`` (and with ``exports`` the export files and reports) under ``out``, and
-    return the summary; raises ``SceneFailed`` (holding the summary) when a stage failed."""
-    runs, failures = collect_runs(ex, handles)
-    diagnose_failed_run(config, ex, handles, runs, failures)
-    summary = build_summary(scene, store, runs, started, config, failures)
-    if out is not None:
-        if exports:
-            summary["exports"] = write_exports(store, runs, out)
-        write_summary(summary, out)
-    if summary["status"] == "failed":
-        raise SceneFailed(summary)
-    return summary
-
-
 @flow(name="reconstruct-scene", log_prints=True)
 def reconstruct_scene(
     scene: str,
@@ -163,7 +145,7 @@ def reconstruct_scene(
         SceneFailed: a stage failed; ``summary.json`` was written all the same.
     """
     started = time.time()
-    config = config or PipelineConfig()
+    config = config or hardware_preset("default")
     store_url = store or default_store_url()
     ex = PrefectExecutor(store_url)
     handles = scene_pipeline(scene, config, ex)
@@ -171,18 +153,27 @@ def reconstruct_scene(
 
 
 def run_scene_inline(
-    scene: str | Path, config: PipelineConfig | None = None, store: str | None = None, out: str | Path | None = None
+    scene: str | Path,
+    config: PipelineConfig | None = None,
+    store: str | None = None,
+    out: str | Path | None = None,
+    workers: int = 1,
 ) -> dict[str, Any]:
     """The same pipeline without Prefect (scripts, benchmarks of raw stage cost); with ``out``,
     writes the exports and ``summary.json`` there as ``reconstruct_scene`` does, and like it raises
-    ``SceneFailed`` when a stage failed."""
-    from flows._runner import InlineExecutor
+    ``SceneFailed`` when a stage failed. ``workers > 1`` runs independent stages at the same time
+    in that many threads (``ParallelExecutor``), as Prefect's task runner does."""
+    from flows._runner import InlineExecutor, ParallelExecutor
 
     started = time.time()
     st = ArtifactStore(store or default_store_url())
-    ex = InlineExecutor(st)
-    config = config or PipelineConfig()
-    return finish_scene(scene, config, ex, scene_pipeline(scene, config, ex), st, started, out)
+    ex = ParallelExecutor(st, workers) if workers > 1 else InlineExecutor(st)
+    config = config or hardware_preset("default")
+    try:
+        return finish_scene(scene, config, ex, scene_pipeline(scene, config, ex), st, started, out)
+    finally:
+        if workers > 1:
+            ex.shutdown()
 
 
 def stage_names() -> list[str]:

@@ -73,4 +73,9 @@ class ArticulateConfig(StageConfig):
         default=1.6e-4, gt=0, description="Position learning rate, times the scene extent (metres)."
     )
     backend: str = Field(default="auto", description="Rasterizer backend: auto, cpu or cuda.")
+    train_max_side: int | None = Field(
+        default=None, ge=16,
+        description="Train on both recordings downscaled to at most this many pixels on the long side, the masks "
+        "with them (a CPU budget: a step's cost grows with the pixels); None = the captures' resolution.",
+    )
     seed: int = Field(default=0, description="Seed of the view order.")

@@ -12,13 +12,36 @@ from schemas._reconstruct import PoseRefineStageConfig, ReconstructConfig
 
 
 class IngestConfig(StageConfig):
-    """How a recording is read into a capture artifact."""
+    """How a recording is read into a capture artifact: which frames, at what RGB resolution.
+
+    The working resolution and the keyframes are chosen here, before the images are decoded, so
+    a long recording at a phone's native resolution never sits in memory whole (the presets set
+    them for the hardware: ``PipelineConfig.preset``)."""
 
     stride: int = Field(default=1, ge=1, description="Keep every stride-th frame.")
     max_frames: int | None = Field(default=None, ge=1, description="Keep at most this many frames (after stride); None = all.")
     rgb_max_width: int | None = Field(
         default=None, ge=16, description="Downscale RGB to at most this width in pixels (intrinsics scaled to match); None = keep."
     )
+    rgb_max_side: int | None = Field(
+        default=None, ge=16,
+        description="The working resolution: downscale RGB so its longer side is at most this many pixels, whatever "
+        "the file holds (each frame as it is decoded; intrinsics scaled to match); None = the file's resolution.",
+    )
+    keyframes_max: int | None = Field(
+        default=None, ge=2,
+        description="A recording with more frames (after stride and max_frames) keeps at most this many keyframes, "
+        "chosen from its poses and depth before any image is decoded: views spread evenly over the sweep, frames "
+        "kept densely where the scene moves, frames that see what no other does (artitwin_core.capture."
+        "select_keyframes). None = every frame.",
+    )
+    keyframe_view_step: float = Field(
+        default=0.05, gt=0, description="Keyframes: weight of view change, camera travel over the median depth plus rotation (radians)."
+    )
+    keyframe_change_step: float = Field(
+        default=0.03, gt=0, description="Keyframes: weight of scene change, the share of depth pixels that moved since the last keyframe."
+    )
+    keyframe_max_gap_s: float = Field(default=1.0, gt=0, description="Keyframes: at most this many seconds between keyframes (before the budget widens it).")
 
 
 class CaptureCheckConfig(StageConfig):
@@ -305,6 +328,13 @@ class FramePosesConfig(StageConfig):
     )
 
 
+# The CPU budget of the "default" preset (PipelineConfig.preset): a CPU 3DGS step's cost grows with
+# the pixels trained on, the diagnosis's with the pixels compared (docs/performance.md: what each costs).
+CPU_RECONSTRUCT = {"train_max_side": 384, "steps": 800, "max_init_points": 15_000, "max_gaussians": 30_000}
+CPU_ARTICULATE = {"train_max_side": 256, "phase1_steps": 200, "phase2_steps": 100}
+CPU_PREDICT = {"max_side": 256, "max_frames": 16, "run_frames": 4}
+
+
 class PipelineConfig(StageConfig):
     """The configs of every stage of one scene run."""
 
@@ -410,15 +440,48 @@ class PipelineConfig(StageConfig):
         return sorted(out)
 
     @classmethod
-    def preset(cls, name: str) -> PipelineConfig:
-        """A named starting point: ``"default"`` (real captures) or ``"quick"`` (the built-in
-        example and the tests: small scenes, a short 3DGS schedule, fewer features)."""
-        if name == "default":
+    def preset(cls, name: str, gpu: bool = False) -> PipelineConfig:
+        """A named starting point:
+
+        - ``"default"``: real captures (a phone recording of hundreds of frames at 1920x1440) on
+          the hardware at hand. ``gpu=False`` (a laptop's CPU): RGB worked at 640 pixels on the
+          long side whatever the file holds, at most 100 keyframes a recording, SIFT features
+          scaled to that resolution with sequential and loop-closure matching beyond 40 frames,
+          and 3DGS budgets (steps, Gaussians, training resolution) sized for minutes on 2 cores.
+          ``gpu=True`` (CUDA with gsplat; the caller says, e.g. ``flows.gpu_available()``):
+          native resolution, 300 keyframes, and a GPU budget (1M Gaussians, 7000 steps).
+        - ``"quick"``: the built-in example and the tests: small scenes, a short 3DGS schedule,
+          fewer features.
+        - ``"full"``: every stage config's own defaults (no resolution cap, no keyframes, the
+          original 3DGS schedule), as before presets sized runs for the hardware.
+        """
+        if name == "full":
             return cls()
+        if name == "default":
+            return cls._real_capture(gpu)
         if name == "quick":
             return cls(
                 refine_poses=PoseRefineStageConfig(max_features=1024),
                 reconstruct=ReconstructConfig(steps=300, max_init_points=8000, max_gaussians=15000, sh_degree=1),
                 articulate=ArticulateConfig(phase1_steps=120, phase2_steps=60),
             )
-        raise ValueError(f"unknown pipeline preset {name!r}; known: default, quick")
+        raise ValueError(f"unknown pipeline preset {name!r}; known: default, quick, full")
+
+    @classmethod
+    def _real_capture(cls, gpu: bool) -> PipelineConfig:
+        poses = PoseRefineStageConfig(max_features=None, exhaustive_max_frames=40, loop_closure_pairs=5, extraction_threads=0)
+        if gpu:
+            return cls(
+                ingest=IngestConfig(rgb_max_side=None, keyframes_max=300),
+                refine_poses=poses,
+                reconstruct=ReconstructConfig(steps=7000, max_init_points=200_000, max_gaussians=1_000_000),
+                articulate=ArticulateConfig(phase1_steps=1500, phase2_steps=750, seed_max_points=100_000,
+                                            seed_background_max_points=100_000),
+            )
+        return cls(
+            ingest=IngestConfig(rgb_max_side=640, keyframes_max=100),
+            refine_poses=poses,
+            reconstruct=ReconstructConfig(**CPU_RECONSTRUCT),
+            articulate=ArticulateConfig(**CPU_ARTICULATE),
+            predict_views=PredictViewsConfig(**CPU_PREDICT),
+        )

@@ -23,6 +23,17 @@ class PredictViewsConfig(StageConfig):
     min_alpha: float = Field(
         default=0.5, ge=0, le=1, description="Pixels whose rendered opacity is below this are not compared."
     )
+    max_side: int | None = Field(
+        default=None, ge=16,
+        description="Render the RGB prediction at most this many pixels on the long side (the diagnosis compares it "
+        "with the capture downscaled alike); None = the capture's RGB size. Depth stays at the depth size.",
+    )
+    max_frames: int | None = Field(
+        default=None, ge=3,
+        description="Predict at most this many frames, in runs of run_frames consecutive frames spread evenly over "
+        "the recording (the timing effects read the camera's velocity from neighbouring frames); None = every frame.",
+    )
+    run_frames: int = Field(default=5, ge=1, description="Length of the runs of consecutive frames max_frames keeps.")
 
 
 class DiagnoseConfig(StageConfig):
@@ -95,14 +106,19 @@ class ViewPrediction(Artifact):
     kind = "view_prediction"
     schema_version = 1
 
-    rgb: Array("uint8", "T H W 3") = Field(description="Predicted sRGB at the capture's RGB size, [T, H, W, 3] uint8.")
+    rgb: Array("uint8", "T H W 3") = Field(
+        description="Predicted sRGB, [T, H, W, 3] uint8, at the capture's RGB size or downscaled to PredictViewsConfig.max_side."
+    )
     depth: Array("float32", "T h w") = Field(
         description="Predicted z-depth at the capture's depth size, metres, [T, h, w]; NaN (or 0) where none."
     )
     coverage: Array("bool", "T H W") | None = Field(
         default=None, description="Pixels the prediction covers (e.g. render opacity > 0.5), [T, H, W]; None = all."
     )
-    frame_ids: Array("int64", "T") = Field(description="Frame numbers of the capture these predictions are for, [T].")
+    frame_ids: Array("int64", "T") = Field(
+        description="Frame numbers of the capture these predictions are for, [T] (all of its frames, or the ones "
+        "PredictViewsConfig.max_frames kept)."
+    )
     world_from_camera: Array("float64", "T 4 4") | None = Field(
         default=None,
         description="The camera poses the prediction was rendered at (the twin's, e.g. refined), [T, 4, 4]; None = the capture's.",

@@ -17,11 +17,19 @@ class PoseRefineStageConfig(StageConfig):
     """Refining the static recording's camera poses (COLMAP features + depth-aware bundle adjustment)."""
 
     enabled: bool = Field(default=True, description="False keeps the capture poses (corrections reported as None).")
-    max_features: int = Field(default=4096, ge=64, description="SIFT features per RGB frame.")
+    max_features: int | None = Field(
+        default=4096, ge=64,
+        description="SIFT features per RGB frame; None = scaled with the working resolution (4 sqrt(W H), 1024..8192).",
+    )
     exhaustive_max_frames: int = Field(
         default=80, ge=2, description="Match every frame pair up to this many frames; sequential matching beyond."
     )
     sequential_overlap: int = Field(default=10, ge=1, description="Sequential matching: frames matched with each frame.")
+    loop_closure_pairs: int = Field(
+        default=0, ge=0,
+        description="Sequential matching: each frame is also matched with up to this many frames outside its window whose "
+        "views overlap (by the capture poses): loop closures of a sweep that comes back.",
+    )
     prior_position_std_m: float = Field(
         default=0.05, gt=0, description="Std of the capture camera centres used as priors in bundle adjustment, metres."
     )
@@ -30,7 +38,10 @@ class PoseRefineStageConfig(StageConfig):
     max_correction_m: float = Field(default=0.15, gt=0, description="Larger corrections are rejected (frame kept), metres.")
     max_correction_deg: float = Field(default=8.0, gt=0, description="Larger rotation corrections are rejected, degrees.")
     num_threads: int = Field(
-        default=1, ge=1, description="CPU threads COLMAP and Ceres may use; 1 gives the same poses on every run."
+        default=1, ge=1, description="CPU threads COLMAP and Ceres may use to match and adjust; 1 gives the same poses on every run."
+    )
+    extraction_threads: int = Field(
+        default=1, ge=0, description="CPU threads extracting SIFT features (0 = every available core; the features are the same)."
     )
 
 
@@ -53,6 +64,11 @@ class ReconstructConfig(StageConfig):
     max_gaussians: int = Field(default=60_000, ge=1000, description="Densification stops adding beyond this many Gaussians.")
     grad_threshold: float = Field(default=2e-4, gt=0, description="Densification threshold on the mean NDC gradient norm.")
     backend: str = Field(default="auto", description="Rasterizer backend: auto, cpu or cuda.")
+    train_max_side: int | None = Field(
+        default=None, ge=16,
+        description="Train on the frames downscaled to at most this many pixels on the long side (a CPU budget: a "
+        "step's cost grows with the pixels); None = the capture's resolution. Evaluation stays at the capture's.",
+    )
     seed: int = Field(default=0, description="Seed of the view order and split samples.")
     sensor_effects: list[Literal["exposure_white_balance", "vignetting", "depth_scale_offset"]] = Field(
         default_factory=list,

@@ -18,7 +18,7 @@ from artitwin_core.articulation import (
     label_counts,
 )
 from artitwin_core.capture import Capture
-from artitwin_core.gaussians import LABEL_BACKGROUND, GaussianParams
+from artitwin_core.gaussians import LABEL_BACKGROUND, GaussianParams, resolve_backend
 from artitwin_core.joints import Joint
 from artitwin_core.masks import MaskSequence
 from artitwin_core.reconstruction import split_frames
@@ -54,6 +54,7 @@ def core_config(config: ArticulateConfig) -> ArticulationConfig:
         appearance_knots=config.appearance_knots,
         lr_means=config.lr_means,
         backend=config.backend,
+        max_side=config.train_max_side,
         seed=config.seed,
     )
 
@@ -136,8 +137,8 @@ def articulate_report(
     if not test:
         notes.append("No dynamic frame was held out (holdout_every = 0 or too few frames): no evaluation.")
     else:
-        av = dynamic_views(dyn, dyn.world_from_camera, seq, js, test)
         cc = core_config(config)
+        av = dynamic_views(dyn, dyn.world_from_camera, seq, js, test, resolve_backend(cc.backend).device)
         twin_psnr = evaluate_psnr(params, av, js, cc)
         canon_psnr = evaluate_psnr(canon, av, js, cc)
         metrics["psnr_holdout_db"] = float(np.mean(twin_psnr))

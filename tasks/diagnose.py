@@ -20,9 +20,9 @@ import math
 import numpy as np
 from PIL import Image
 
-from artitwin_core import InputError
-from artitwin_core.articulation import render_twin
-from artitwin_core.capture import Capture, estimate_depth_calibration
+from artitwin_core import InputError, progress
+from artitwin_core.articulation import TwinRenderer
+from artitwin_core.capture import Capture, downscale_rgb, estimate_depth_calibration
 from artitwin_core.capture import DepthCalibrationConfig as CoreCalibrationConfig
 from artitwin_core.diagnostics import DiagnoseConfig as CoreDiagnoseConfig
 from artitwin_core.diagnostics import (
@@ -39,7 +39,8 @@ from artitwin_core.diagnostics import diagnose as run_diagnosis
 from artitwin_core.diagnostics._report import residual_maps
 from artitwin_core.gaussians import GaussianParams
 from artitwin_core.joints import Joint, poses_on_rgb_clock, to_rgb_clock
-from artitwin_core.reconstruction import render_view
+from artitwin_core.masks import MaskSequence, downscale_masks
+from artitwin_core.reconstruction import ModelRenderer
 from schemas import (
     CameraPoses,
     CaptureArtifact,
@@ -67,7 +68,7 @@ STATIC_SCOPE = "static recording"
 DYNAMIC_SCOPE = "dynamic recording"
 
 
-@stage(name="predict_views", version=2, config=PredictViewsConfig, output=ViewPrediction)
+@stage(name="predict_views", version=3, config=PredictViewsConfig, output=ViewPrediction)
 def predict_views(
     capture: CaptureArtifact, poses: CameraPoses, checkpoint: GaussianCheckpoint, config: PredictViewsConfig
 ) -> ViewPrediction:
@@ -85,23 +86,27 @@ def predict_views(
         )
     params = to_core(GaussianParams, checkpoint)
     sensor = sensor_model(checkpoint)  # the camera effects the twin models, learned with it
-    _, h, w, _ = capture.rgb.shape
+    frames = prediction_frames(capture.rgb.shape[0], config)
+    cap = _predicted_grid(to_core(Capture, capture), frames, config)
+    w, h = cap.rgb_size
     _, dh, dw = capture.depth.shape
     rgb, depth, cover = [], [], []
-    for t in range(capture.rgb.shape[0]):
-        pose = poses.world_from_camera[t]
-        colour, _, alpha = render_view(params, pose, capture.rgb_intrinsics[t], w, h, backend=config.backend)
-        _, z, alpha_d = render_view(params, pose, capture.depth_intrinsics[t], dw, dh, backend=config.backend)
+    renderer = ModelRenderer(params, backend=config.backend)  # the model goes to the device once
+    for i in _counted("rendering the static frames", len(frames)):
+        t, pose = frames[i], poses.world_from_camera[frames[i]]
+        colour, _, alpha = renderer.render(pose, cap.rgb_intrinsics[i], w, h)
+        _, z, alpha_d = renderer.render(pose, capture.depth_intrinsics[t], dw, dh)
         if sensor is not None:
-            colour, z = sensor.apply_rgb(colour, t, capture.rgb_intrinsics[t]), sensor.apply_depth(z)
+            colour, z = sensor.apply_rgb(colour, t, cap.rgb_intrinsics[i]), sensor.apply_depth(z)
         rgb.append(np.round(np.clip(colour, 0, 1) * 255).astype(np.uint8))
         depth.append(np.where(alpha_d >= config.min_alpha, z, np.nan).astype(np.float32))
         cover.append(alpha >= config.min_alpha)
     return ViewPrediction(rgb=np.stack(rgb), depth=np.stack(depth), coverage=np.stack(cover),
-                          frame_ids=capture.frame_ids.copy(), world_from_camera=np.asarray(poses.world_from_camera, np.float64))
+                          frame_ids=capture.frame_ids[frames].copy(),
+                          world_from_camera=np.asarray(poses.world_from_camera, np.float64)[frames])
 
 
-@stage(name="predict_dynamic", version=2, config=PredictViewsConfig, output=ViewPrediction)
+@stage(name="predict_dynamic", version=3, config=PredictViewsConfig, output=ViewPrediction)
 def predict_dynamic(
     twin: GaussianCheckpoint,
     dynamic: CaptureArtifact,
@@ -138,28 +143,63 @@ def predict_dynamic(
     if lag != 0.0 and joints.timestamps is not None:
         rgb_poses = poses_on_rgb_clock(poses, joints.timestamps, lag)
         js_depth = [to_rgb_clock(j, joints.timestamps, -lag) for j in js]
-    _, h, w, _ = dynamic.rgb.shape
+    frames = prediction_frames(t_frames, config)
+    cap = _predicted_grid(to_core(Capture, dynamic), frames, config)
+    _, hr, wr, _ = dynamic.rgb.shape
+    w, h = cap.rgb_size
     _, dh, dw = dynamic.depth.shape
     rgb, depth, cover = [], [], []
-    for t in range(t_frames):
+    hands = None  # the hand at a lower prediction resolution: a pixel is the hand's if any pixel it covers is
+    if (w, h) != (wr, hr):
+        sel = np.asarray(masks.hand, bool)[frames]
+        no_part = np.broadcast_to(np.zeros((1, 1, 1), np.uint8), sel.shape)
+        hands = downscale_masks(MaskSequence(no_part, sel, np.ones(len(frames), np.float32)), (w, h)).hand
+    twin = TwinRenderer(params, js, backend=config.backend)  # the twin goes to the device once
+    twin_depth = twin if js_depth is js else TwinRenderer(params, js_depth, backend=config.backend)
+    for i in _counted("rendering the dynamic frames", len(frames)):
+        t = frames[i]
         q = [float(j.q[t]) for j in js]
         q_d = [float(j.q[t]) for j in js_depth]
-        colour, _, alpha = render_twin(params, js, q, rgb_poses[t], dynamic.rgb_intrinsics[t], w, h, backend=config.backend)
-        _, z, alpha_d = render_twin(params, js_depth, q_d, poses[t], dynamic.depth_intrinsics[t], dw, dh,
-                                    backend=config.backend)
-        hand = np.asarray(masks.hand[t], bool)
+        colour, _, alpha = twin.render(q, rgb_poses[t], cap.rgb_intrinsics[i], w, h)
+        _, z, alpha_d = twin_depth.render(q_d, poses[t], dynamic.depth_intrinsics[t], dw, dh)
+        hand_full = np.asarray(masks.hand[t], bool)
+        hand = hand_full if hands is None else hands[i]  # at the prediction's RGB size
         # The hand mask on the depth grid: a depth pixel is the hand's if any RGB pixel it spans is.
-        yy = np.minimum((np.arange(dh)[:, None] * h) // dh, h - 1)
-        xx = np.minimum((np.arange(dw)[None, :] * w) // dw, w - 1)
+        yy = np.minimum((np.arange(dh)[:, None] * hr) // dh, hr - 1)
+        xx = np.minimum((np.arange(dw)[None, :] * wr) // dw, wr - 1)
         hand_d = np.zeros((dh, dw), bool)
-        for oy in range(max(1, h // dh)):
-            for ox in range(max(1, w // dw)):
-                hand_d |= hand[np.minimum(yy + oy, h - 1), np.minimum(xx + ox, w - 1)]
+        for oy in range(max(1, hr // dh)):
+            for ox in range(max(1, wr // dw)):
+                hand_d |= hand_full[np.minimum(yy + oy, hr - 1), np.minimum(xx + ox, wr - 1)]
         rgb.append(np.round(np.clip(colour, 0, 1) * 255).astype(np.uint8))
         depth.append(np.where((alpha_d >= config.min_alpha) & ~hand_d, z, np.nan).astype(np.float32))
         cover.append((alpha >= config.min_alpha) & ~hand)
     return ViewPrediction(rgb=np.stack(rgb), depth=np.stack(depth), coverage=np.stack(cover),
-                          frame_ids=np.asarray(dynamic.frame_ids, np.int64).copy(), world_from_camera=poses)
+                          frame_ids=np.asarray(dynamic.frame_ids, np.int64)[frames].copy(), world_from_camera=poses[frames])
+
+
+def prediction_frames(n: int, config: PredictViewsConfig) -> list[int]:
+    """Positions of the ``n`` frames predicted: every one, or ``config.max_frames`` of them in runs
+    of ``config.run_frames`` consecutive frames spread evenly (first and last runs at the ends)."""
+    if config.max_frames is None or n <= config.max_frames:
+        return list(range(n))
+    run = max(1, min(config.run_frames, config.max_frames))
+    runs = max(1, config.max_frames // run)
+    starts = np.round(np.linspace(0, n - run, runs)).astype(int)
+    return sorted({int(s) + k for s in starts for k in range(run)})
+
+
+def _predicted_grid(capture: Capture, frames: list[int], config: PredictViewsConfig) -> Capture:
+    """The capture's ``frames`` at the RGB size the prediction is rendered at (``config.max_side``)."""
+    return downscale_rgb(capture.select_frames(frames), config.max_side)
+
+
+def _counted(name: str, n: int):
+    """``range(n)``, reported as progress (``artitwin_core.progress``)."""
+    with progress(name, total=n) as report:
+        for t in range(n):
+            yield t
+            report.advance()
 
 
 def _json_safe(value):
@@ -180,6 +220,7 @@ def _json_safe(value):
 
 
 def _sensor_data(capture: CaptureArtifact, prediction: ViewPrediction, config: DiagnoseConfig) -> ResidualData:
+    capture = _as_predicted(capture, prediction)
     if prediction.rgb.shape != capture.rgb.shape:
         raise InputError(
             f"diagnose: the prediction's RGB is {prediction.rgb.shape}, the capture's {capture.rgb.shape}; "
@@ -200,6 +241,24 @@ def _sensor_data(capture: CaptureArtifact, prediction: ViewPrediction, config: D
         depth_intrinsics=capture.depth_intrinsics,
         world_from_camera=capture.world_from_camera if prediction.world_from_camera is None else prediction.world_from_camera,
     )
+
+
+def _as_predicted(capture: CaptureArtifact, prediction: ViewPrediction) -> Capture:
+    """The capture's frames that ``prediction`` predicts, at its RGB size (``predict_views`` may
+    predict some of the frames, at a lower resolution: ``PredictViewsConfig.max_frames``, ``max_side``)."""
+    cap = to_core(Capture, capture)
+    ids = np.asarray(prediction.frame_ids, np.int64)
+    if not np.array_equal(ids, cap.frame_ids):
+        pos = np.searchsorted(cap.frame_ids, ids)
+        if np.any(pos >= cap.num_frames) or not np.array_equal(cap.frame_ids[np.minimum(pos, cap.num_frames - 1)], ids):
+            raise InputError("diagnose: the prediction names frames the capture does not have; predict this capture's frames.")
+        cap = cap.select_frames(pos)
+    h, w = prediction.rgb.shape[1:3]
+    if (w, h) != cap.rgb_size:
+        small = downscale_rgb(cap, max(w, h))
+        if small.rgb_size == (w, h):
+            cap = small
+    return cap
 
 
 def _track_data(joints: JointSet, trajectories: TrajectoriesArtifact, config: DiagnoseConfig) -> list[tuple[str, ResidualData]]:

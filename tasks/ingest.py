@@ -2,21 +2,46 @@
 
 from __future__ import annotations
 
+import logging
+from dataclasses import replace
 from pathlib import Path
 
 import numpy as np
 
-from artitwin_core.capture import Capture, ReadOptions, read_capture
+from artitwin_core.capture import Capture, KeyframeConfig, ReadOptions, read_capture, select_keyframes
 from artitwin_core.diagnostics import capture_quality
 from schemas import CaptureArtifact, CaptureCheckConfig, IngestConfig, StageReport
 from tasks._convert import to_artifact, to_core
 from tasks._stage import stage
 
+log = logging.getLogger(__name__)
+
+
+def keyframe_config(config: IngestConfig) -> KeyframeConfig:
+    """The core dataclass for a stage config's keyframe fields (``keyframes_max`` set)."""
+    return KeyframeConfig(
+        max_frames=int(config.keyframes_max), view_step=config.keyframe_view_step,
+        change_step=config.keyframe_change_step, max_gap_s=config.keyframe_max_gap_s,
+    )
+
 
 @stage(name="ingest", version=1, config=IngestConfig, output=CaptureArtifact, raw_inputs=("recording",))
 def ingest_recording(recording: Path, config: IngestConfig) -> CaptureArtifact:
-    """Read the recording at ``recording`` (any supported format) into a capture artifact."""
-    options = ReadOptions(stride=config.stride, max_frames=config.max_frames, rgb_max_width=config.rgb_max_width)
+    """Read the recording at ``recording`` (any supported format) into a capture artifact, at the
+    working resolution and, for a long recording, its keyframes only (chosen from a first read of
+    the poses and depth alone, so the images of the other frames are never decoded)."""
+    options = ReadOptions(
+        stride=config.stride, max_frames=config.max_frames, rgb_max_width=config.rgb_max_width,
+        rgb_max_side=config.rgb_max_side,
+    )
+    if config.keyframes_max is not None:
+        geometry = read_capture(Path(recording), replace(options, skip_rgb=True))
+        if geometry.num_frames > config.keyframes_max:
+            chosen = select_keyframes(geometry, keyframe_config(config))
+            log.info("ingest %s: %d of %d frames kept as keyframes (%d for coverage)", Path(recording).name,
+                     len(chosen.frames), geometry.num_frames, len(chosen.added_for_coverage))
+            options = replace(options, frames=tuple(int(f) for f in chosen.frames))
+        del geometry
     capture = read_capture(Path(recording), options)
     return to_artifact(CaptureArtifact, capture, source_path=str(recording))
 

@@ -17,13 +17,10 @@ from artitwin_core.reconstruction import (
     PoseRefineConfig,
     SensorModel,
     TrainConfig,
-    TrainState,
     evaluate_views,
-    init_gaussians,
-    make_views,
     refine_poses,
-    scene_extent,
     split_frames,
+    start_training,
     train,
 )
 from schemas import CameraPoses, CaptureArtifact, GaussianCheckpoint, StageReport
@@ -55,6 +52,7 @@ def train_config(config: ReconstructConfig) -> TrainConfig:
         max_gaussians=config.max_gaussians,
         grad_threshold=config.grad_threshold,
         backend=config.backend,
+        max_side=config.train_max_side,
         seed=config.seed,
         sensor_effects=tuple(config.sensor_effects),
     )
@@ -127,10 +125,7 @@ def reconstruct_canonical(capture: CaptureArtifact, poses: CameraPoses, config: 
     """
     cap = _with_poses(capture, poses)
     train_frames, _ = split_frames(cap.num_frames, config.holdout_every)
-    tcfg = train_config(config)
-    params0 = init_gaussians(cap, cap.world_from_camera, train_frames, init_config(config), tcfg.sh_degree)
-    views = make_views(cap, cap.world_from_camera, train_frames, config.min_confidence)
-    state = TrainState.from_params(params0, scene_extent(cap.world_from_camera[train_frames]))
+    state, views, tcfg = start_training(cap, cap.world_from_camera, train_frames, init_config(config), train_config(config))
     train(state, views, tcfg)
     return to_artifact(GaussianCheckpoint, state.to_params(), step=state.step, **sensor_fields(state.sensor_model()))
 

@@ -12,6 +12,7 @@ any joint state and viewpoint, with each part's brightness curve over its joint 
 from artitwin_core.articulation._appearance import PartAppearance
 from artitwin_core.articulation._config import ArticulationConfig, PartitionConfig
 from artitwin_core.articulation._kinematics import (
+    TwinRenderer,
     articulate_params,
     articulate_tensors,
     part_motions,
@@ -31,6 +32,7 @@ __all__ = [
     "PartAppearance",
     "PartitionConfig",
     "PartitionVotes",
+    "TwinRenderer",
     "articulate",
     "articulate_params",
     "articulate_tensors",

@@ -64,7 +64,7 @@ class PartAppearance:
     def gains(self, q_per_joint: Sequence[float]) -> np.ndarray:
         """``[K]`` gain of each part at joint states ``q_per_joint [K]``."""
         g = part_log_gains(torch.from_numpy(self.log_gain), self.knots, q_per_joint)
-        return np.exp(g.numpy())
+        return np.exp(g.detach().numpy())
 
 
 def _interp_weights(knots: np.ndarray, q: float) -> np.ndarray:
@@ -87,7 +87,7 @@ def part_log_gains(log_gain: torch.Tensor, knots: np.ndarray, q_per_joint: Seque
     out = []
     for k in range(log_gain.shape[0]):
         w = _interp_weights(knots[k], float(q_per_joint[k])) - _interp_weights(knots[k], 0.0)
-        out.append((log_gain[k] * torch.as_tensor(w, dtype=log_gain.dtype)).sum())
+        out.append((log_gain[k] * torch.as_tensor(w, dtype=log_gain.dtype, device=log_gain.device)).sum())
     return torch.stack(out) if out else log_gain.new_zeros(0)
 
 

@@ -81,6 +81,9 @@ class ArticulationConfig:
         min_opacity: after each phase, trained Gaussians fainter than this are pruned.
         background: RGB in [0, 1] behind everything.
         backend: rasterizer backend (``"auto"``, ``"cpu"``, ``"cuda"``).
+        max_side: train (and seed, and measure the held-out PSNR) on both recordings' RGB
+            downscaled to at most this many pixels on the long side, the masks with them (None:
+            as the captures hold them); a CPU budget: a step's cost grows with the pixels.
         seed: random view order.
     """
 
@@ -110,6 +113,7 @@ class ArticulationConfig:
     min_opacity: float = 0.005
     background: tuple[float, float, float] = (0.0, 0.0, 0.0)
     backend: str = "auto"
+    max_side: int | None = None
     seed: int = 0
 
     def __post_init__(self) -> None:

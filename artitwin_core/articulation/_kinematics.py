@@ -21,7 +21,7 @@ from artitwin_core.articulation._appearance import PartAppearance, apply_part_ga
 from artitwin_core.gaussians import LABEL_PART, GaussianParams
 from artitwin_core.geometry import matrix_to_quat_wxyz
 from artitwin_core.joints import Joint, joint_transforms
-from artitwin_core.reconstruction import render_view
+from artitwin_core.reconstruction import ModelRenderer
 
 
 def world_from_part(joint: Joint, q: float | np.ndarray) -> np.ndarray:
@@ -59,6 +59,34 @@ def quat_multiply(a: torch.Tensor, b: torch.Tensor) -> torch.Tensor:
     ], dim=-1)  # fmt: skip
 
 
+def motion_tables(motions: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Per-label rigid motions from ``[..., K, 4, 4]`` ``world_from_part``: rotations
+    ``[..., L, 3, 3]``, translations ``[..., L, 3]`` and wxyz quaternions ``[..., L, 4]`` float64,
+    ``L = LABEL_PART + K`` (background and interior rows are the identity)."""
+    motions = np.asarray(motions, np.float64)
+    lead, k = motions.shape[:-3], motions.shape[-3]
+    table = np.broadcast_to(np.eye(4), (*lead, LABEL_PART + k, 4, 4)).copy()
+    table[..., LABEL_PART:, :, :] = motions
+    return table[..., :3, :3].copy(), table[..., :3, 3].copy(), matrix_to_quat_wxyz(table[..., :3, :3])
+
+
+def move_by_label(
+    means: torch.Tensor,
+    quats_wxyz: torch.Tensor,
+    labels: torch.Tensor,
+    rot: torch.Tensor,
+    trans: torch.Tensor,
+    quat: torch.Tensor,
+) -> tuple[torch.Tensor, torch.Tensor]:
+    """Move every Gaussian by its label's row of ``rot [L, 3, 3]``, ``trans [L, 3]`` and ``quat
+    [L, 4]`` (from :func:`motion_tables`, on the means' device and dtype); labels ``>= L`` stay."""
+    n_labels = int(rot.shape[0])
+    lab = labels.long()
+    idx = torch.where(lab >= n_labels, 0, lab.clamp(0, n_labels - 1))  # unknown parts stay
+    moved = torch.einsum("nij,nj->ni", rot[idx], means) + trans[idx]
+    return moved, quat_multiply(quat[idx], quats_wxyz)
+
+
 def articulate_tensors(
     means: torch.Tensor, quats_wxyz: torch.Tensor, labels: torch.Tensor, motions: np.ndarray | torch.Tensor
 ) -> tuple[torch.Tensor, torch.Tensor]:
@@ -71,23 +99,15 @@ def articulate_tensors(
         motions: ``[K, 4, 4]`` ``world_from_part`` per joint.
 
     Returns:
-        means ``[N, 3]`` and quats ``[N, 4]`` at the joint states.
+        means ``[N, 3]`` and quats ``[N, 4]`` at the joint states, on the means' device. (A trainer
+        that renders the same states again builds :func:`motion_tables` on its device once.)
     """
-    motions = torch.as_tensor(np.asarray(motions) if not isinstance(motions, torch.Tensor) else motions)
-    k = int(motions.shape[0])
-    if k == 0:
+    m = motions.detach().cpu().numpy() if isinstance(motions, torch.Tensor) else np.asarray(motions)
+    if int(m.shape[0]) == 0:
         return means, quats_wxyz
-    dtype = means.dtype
-    table = torch.eye(4, dtype=torch.float64).repeat(LABEL_PART + k, 1, 1)
-    table[LABEL_PART:] = motions.to(torch.float64)
-    rot_q = torch.as_tensor(matrix_to_quat_wxyz(table[:, :3, :3].numpy()))
-    idx = labels.long().clamp(0, LABEL_PART + k - 1)
-    idx = torch.where(labels.long() >= LABEL_PART + k, 0, idx)  # unknown parts stay
-    rot = table[idx, :3, :3].to(dtype)
-    trans = table[idx, :3, 3].to(dtype)
-    moved = torch.einsum("nij,nj->ni", rot, means) + trans
-    quats = quat_multiply(rot_q[idx].to(dtype), quats_wxyz)
-    return moved, quats
+    dev, dtype = means.device, means.dtype
+    rot, trans, quat = (torch.as_tensor(a).to(device=dev, dtype=dtype) for a in motion_tables(m))
+    return move_by_label(means, quats_wxyz, labels, rot, trans, quat)
 
 
 def articulate_params(
@@ -130,6 +150,53 @@ def articulate_params(
     )
 
 
+class TwinRenderer:
+    """The labelled twin on the device ``backend`` resolves to (copied there once), rendered at
+    any joint states from any pinhole camera: what :func:`render_twin` does for many frames.
+
+    Args:
+        params: the labelled Gaussians in the canonical (closed) state.
+        joints: one joint per part, in label order (part k = ``joints[k]``).
+        background: RGB in [0, 1] behind everything.
+        backend: ``"auto"`` (CUDA with gsplat when present, else CPU), ``"cpu"``, ``"reference"``, ``"cuda"``.
+        appearance: the parts' brightness curves; None renders closed-state colours.
+    """
+
+    def __init__(
+        self,
+        params: GaussianParams,
+        joints: Sequence[Joint],
+        *,
+        background: Sequence[float] = (0.0, 0.0, 0.0),
+        backend: str = "auto",
+        appearance: PartAppearance | None = None,
+    ) -> None:
+        if appearance is not None and appearance.num_parts and appearance.num_parts != len(joints):
+            raise InputError(
+                f"render_twin: the appearance has {appearance.num_parts} part curves for {len(joints)} "
+                "joints; use the appearance articulated with these joints."
+            )
+        self.model = ModelRenderer(params, background=background, backend=backend)
+        self.joints = list(joints)
+        self.appearance = appearance
+        self.labels = torch.from_numpy(np.asarray(params.labels).astype(np.int64)).to(self.model.device)
+
+    def render(
+        self, q_per_joint: Sequence[float], world_from_camera: np.ndarray, intrinsics: Sequence[float], width: int, height: int
+    ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """rgb ``[H, W, 3]``, expected depth ``[H, W]`` (metres, 0 where empty), alpha ``[H, W]``,
+        with part k at ``q_per_joint[k]`` (see :func:`render_twin`)."""
+        m = self.model
+        with torch.no_grad():
+            motions = part_motions(self.joints, q_per_joint)
+            means, quats = articulate_tensors(m.means, m.quats_wxyz, self.labels, motions)
+            sh = m.sh
+            if self.appearance is not None and self.appearance.num_parts:
+                log_g = torch.from_numpy(np.log(self.appearance.gains(q_per_joint))).to(m.device)
+                sh = apply_part_gains(sh, self.labels, log_g)
+        return m.render(world_from_camera, intrinsics, width, height, means=means, quats_wxyz=quats, sh=sh)
+
+
 def render_twin(
     params: GaussianParams,
     joints: Sequence[Joint],
@@ -143,7 +210,8 @@ def render_twin(
     backend: str = "auto",
     appearance: PartAppearance | None = None,
 ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """Render the twin at any joint state from any pinhole camera.
+    """Render the twin at any joint state from any pinhole camera (many frames:
+    :class:`TwinRenderer` copies the twin to the device once).
 
     Args:
         params: the labelled Gaussians in the canonical (closed) state.
@@ -159,7 +227,6 @@ def render_twin(
         rgb ``[H, W, 3]`` float32 in [0, 1], expected depth ``[H, W]`` float32 metres (0 where
         nothing is rendered), alpha ``[H, W]`` float32.
     """
-    moved = articulate_params(params, joints, q_per_joint, appearance)
-    return render_view(
-        moved, world_from_camera, intrinsics, width, height, background=background, backend=backend
-    )
+    part_motions(joints, q_per_joint)  # the state count is checked before anything is copied
+    renderer = TwinRenderer(params, joints, background=background, backend=backend, appearance=appearance)
+    return renderer.render(q_per_joint, world_from_camera, intrinsics, width, height)

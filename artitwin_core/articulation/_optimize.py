@@ -14,22 +14,28 @@ from __future__ import annotations
 
 import math
 from collections.abc import Callable, Sequence
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 
 import numpy as np
 import torch
 from scipy.ndimage import binary_dilation
 from scipy.spatial import cKDTree
 
+from artitwin_core import progress
 from artitwin_core.articulation._appearance import PartAppearance, apply_part_gains, part_log_gains
 from artitwin_core.articulation._config import ArticulationConfig
-from artitwin_core.articulation._kinematics import articulate_tensors, part_motions
+from artitwin_core.articulation._kinematics import (
+    articulate_tensors,
+    motion_tables,
+    move_by_label,
+    part_motions,
+)
 from artitwin_core.gaussians import LABEL_BACKGROUND, LABEL_INTERIOR, LABEL_PART, GaussianParams, rasterize
 from artitwin_core.gaussians._sh import SH_C0
 from artitwin_core.joints import Joint
 from artitwin_core.reconstruction import TrainViews
 from artitwin_core.reconstruction._losses import depth_l1, photometric_loss, psnr
-from artitwin_core.reconstruction._train import view_index
+from artitwin_core.reconstruction._train import background_tensor, view_index
 
 PARAM_NAMES = ("means", "quats_wxyz", "log_scales", "opacity_logits", "sh_dc", "sh_rest")
 _BETAS = (0.9, 0.999)
@@ -45,15 +51,37 @@ class ArticulatedViews:
         q: ``[V, K]`` float64 joint states at each view (zeros for the static recording).
         part: ``[V, H, W]`` uint8 part labels (0 = none, k + 1 = part k); zeros when static.
         hand: ``[V, H, W]`` bool pixels excluded from every loss and metric.
+        tables: each view's per-label part motions (:func:`motion_tables` of the joints at ``q``:
+            rotations ``[V, L, 3, 3]``, translations ``[V, L, 3]``, wxyz quaternions ``[V, L, 4]``)
+            on the views' device, made once by :meth:`with_tables`; None computes them per render.
+            Derived from ``q``: a copy with other states must drop them.
     """
 
     views: TrainViews
     q: np.ndarray
     part: np.ndarray
     hand: np.ndarray
+    tables: tuple[torch.Tensor, torch.Tensor, torch.Tensor] | None = None
 
     def __len__(self) -> int:
         return len(self.views.frames)
+
+    def with_tables(self, joints: Sequence[Joint]) -> ArticulatedViews:
+        """These views with every view's part motions (``joints`` at ``q``) built on the views'
+        device once, so a training step copies nothing to the device."""
+        if not len(joints) or not len(self):
+            return self
+        return self.with_motions(np.stack([part_motions(joints, self.q[v]) for v in range(len(self))]))
+
+    def with_motions(self, motions: np.ndarray) -> ArticulatedViews:
+        """These views with ``motions [V, K, 4, 4]`` (each view's ``world_from_part`` per joint) as
+        :attr:`tables` on the views' device (the static recording's: the identity, parts closed)."""
+        motions = np.asarray(motions, np.float64)
+        if motions.shape[1] == 0 or not len(self):
+            return self
+        dev = self.views.device
+        tables = tuple(torch.from_numpy(a.astype(np.float32)).to(dev) for a in motion_tables(motions))
+        return replace(self, tables=tables)
 
 
 @dataclass
@@ -89,19 +117,25 @@ class ArticulationState:
         if appearance is None:
             appearance = PartAppearance(np.zeros((0, 0)), np.zeros((0, 0)))
         self.knots = np.asarray(appearance.knots, np.float64)
-        self.log_gain = torch.tensor(appearance.log_gain, dtype=torch.float64, requires_grad=True)
+        self.log_gain = torch.tensor(appearance.log_gain, dtype=torch.float64, device=self.device, requires_grad=True)
         self.gain_avg = torch.zeros_like(self.log_gain)
         self.gain_avg_sq = torch.zeros_like(self.log_gain)
 
     def appearance(self) -> PartAppearance | None:
         if self.knots.size == 0:
             return None
-        return PartAppearance(self.knots.copy(), self.log_gain.detach().numpy().copy())
+        return PartAppearance(self.knots.copy(), self.log_gain.detach().cpu().numpy().copy())
 
     @classmethod
     def from_params(
-        cls, params: GaussianParams, extent: float, appearance: PartAppearance | None = None
+        cls,
+        params: GaussianParams,
+        extent: float,
+        appearance: PartAppearance | None = None,
+        device: torch.device | str | None = None,
     ) -> ArticulationState:
+        """A fresh state (step 0, zero moments) with every tensor on ``device`` (default CPU)."""
+        dev = torch.device(device or "cpu")
         sh = torch.from_numpy(np.ascontiguousarray(params.sh, np.float32))
         p = {
             "means": torch.from_numpy(np.ascontiguousarray(params.means, np.float32)),
@@ -111,10 +145,10 @@ class ArticulationState:
             "sh_dc": sh[:, :1],
             "sh_rest": sh[:, 1:],
         }
-        p = {k: v.clone().requires_grad_(True) for k, v in p.items()}
+        p = {k: v.to(dev, copy=True).contiguous().requires_grad_(True) for k, v in p.items()}
         state = cls(
             params=p,
-            labels=torch.from_numpy(np.asarray(params.labels, np.int32).copy()),
+            labels=torch.from_numpy(np.asarray(params.labels, np.int32).copy()).to(dev),
             exp_avg={k: torch.zeros_like(v) for k, v in p.items()},
             exp_avg_sq={k: torch.zeros_like(v) for k, v in p.items()},
             step=0,
@@ -127,6 +161,10 @@ class ArticulationState:
     def num_gaussians(self) -> int:
         return int(self.labels.shape[0])
 
+    @property
+    def device(self) -> torch.device:
+        return self.labels.device
+
     def to_params(self) -> GaussianParams:
         p = {k: v.detach().cpu() for k, v in self.params.items()}
         return GaussianParams(
@@ -135,21 +173,21 @@ class ArticulationState:
             log_scales=p["log_scales"].numpy().copy(),
             opacity_logits=p["opacity_logits"].numpy().copy(),
             sh=torch.cat([p["sh_dc"], p["sh_rest"]], 1).numpy().copy(),
-            labels=self.labels.numpy().copy(),
+            labels=self.labels.cpu().numpy().copy(),
         )
 
     def edit(self, keep: torch.Tensor, new: GaussianParams | None = None) -> None:
         """Keep rows ``keep``, then append ``new`` Gaussians (with zero Adam moments)."""
         add = None
         if new is not None and new.num_gaussians:
-            add = ArticulationState.from_params(new, self.extent)
+            add = ArticulationState.from_params(new, self.extent, device=self.device)
         for name in PARAM_NAMES:
             p = self.params[name].detach()[keep]
             m, v = self.exp_avg[name][keep], self.exp_avg_sq[name][keep]
             if add is not None:
                 extra = add.params[name].detach()
                 if extra.shape[1:] != p.shape[1:]:  # fewer SH bands in the seeds: pad with zeros
-                    pad = torch.zeros((extra.shape[0], *p.shape[1:]), dtype=p.dtype)
+                    pad = torch.zeros((extra.shape[0], *p.shape[1:]), dtype=p.dtype, device=p.device)
                     pad[:, : extra.shape[1]] = extra
                     extra = pad
                 p = torch.cat([p, extra])
@@ -175,9 +213,13 @@ def render_state(
     p = state.params
     labels = state.labels
     idx = slice(None) if subset is None else subset
-    means, quats = articulate_tensors(
-        p["means"][idx], p["quats_wxyz"][idx], labels[idx], part_motions(joints, av.q[v])
-    )
+    if av.tables is not None:
+        rot, trans, quat = (t[v] for t in av.tables)
+        means, quats = move_by_label(p["means"][idx], p["quats_wxyz"][idx], labels[idx], rot, trans, quat)
+    else:
+        means, quats = articulate_tensors(
+            p["means"][idx], p["quats_wxyz"][idx], labels[idx], part_motions(joints, av.q[v])
+        )
     sh = torch.cat([p["sh_dc"][idx], p["sh_rest"][idx]], 1)
     if state.knots.size:
         sh = apply_part_gains(sh, labels[idx], part_log_gains(state.log_gain, state.knots, av.q[v]))
@@ -185,7 +227,7 @@ def render_state(
     return rasterize(
         means, quats, p["log_scales"][idx], p["opacity_logits"][idx], sh,
         av.views.cam_from_world[v], tuple(float(x) for x in av.views.intrinsics[v]), w, h,
-        background=torch.tensor(config.background, dtype=torch.float32), backend=config.backend,
+        background=background_tensor(config.background, p["means"].device), backend=config.backend,
     )  # fmt: skip
 
 
@@ -204,7 +246,7 @@ def part_regions(
         if bool(parts.any()):
             with torch.no_grad():
                 out = render_state(state, closed, v, joints, config, subset=parts)
-            m |= out.alpha.numpy() > 0.3
+            m |= out.alpha.cpu().numpy() > 0.3
         region[v] = m
     return region
 
@@ -231,7 +273,7 @@ def uncovered_background(
     out = np.zeros(region.shape, bool)
     for v in range(len(av)):
         with torch.no_grad():
-            alpha = render_state(state, av, v, joints, config).alpha.numpy()
+            alpha = render_state(state, av, v, joints, config).alpha.cpu().numpy()
         hand = (
             binary_dilation(av.hand[v], iterations=config.region_dilate_px)
             if av.hand[v].any()
@@ -265,17 +307,17 @@ def seed_unexplained(
     for v in range(len(av)):
         with torch.no_grad():
             out = render_state(state, av, v, joints, config)
-        alpha = out.alpha.numpy()
-        rdepth = out.expected_depth(1e-3).numpy()
-        d = av.views.depth[v].numpy()
-        ok = (av.views.depth_weight[v].numpy() > 0) & region[v] & ~av.hand[v]
+        alpha = out.alpha.cpu().numpy()
+        rdepth = out.expected_depth(1e-3).cpu().numpy()
+        d = av.views.depth[v].cpu().numpy()
+        ok = (av.views.depth_weight[v].cpu().numpy() > 0) & region[v] & ~av.hand[v]
         bad = ok & ((alpha < 0.5) | (rdepth > d + config.seed_depth_tol_m))
         if not bad.any():
             continue
         fx, fy, cx, cy = av.views.intrinsics[v]
         z = d[bad].astype(np.float64)
         cam = np.stack([(uu[bad] + 0.5 - cx) / fx * z, (vv[bad] + 0.5 - cy) / fy * z, z, np.ones_like(z)], 1)
-        world_from_cam = np.linalg.inv(av.views.cam_from_world[v].numpy().astype(np.float64))
+        world_from_cam = np.linalg.inv(av.views.cam_from_world[v].cpu().numpy().astype(np.float64))
         x = cam @ world_from_cam.T
         lab = np.full(len(z), other_label, np.int32)
         part = av.part[v][bad].astype(np.int64)
@@ -286,7 +328,7 @@ def seed_unexplained(
                 x[on] = x[on] @ np.linalg.inv(motions[k]).T
                 lab[on] = LABEL_PART + k
         pts.append(x[:, :3])
-        cols.append(av.views.rgb[v].numpy()[bad])
+        cols.append(av.views.target(v).cpu().numpy()[bad])
         labs.append(lab)
     if not pts:
         return _empty_params()
@@ -382,18 +424,19 @@ def view_loss(
     state: ArticulationState,
     av: ArticulatedViews,
     v: int,
-    loss_mask: np.ndarray,
+    loss_mask: np.ndarray | torch.Tensor,
     joints: Sequence[Joint],
     config: ArticulationConfig,
 ) -> torch.Tensor:
-    """Photometric (L1 + D-SSIM) plus depth loss of view ``v`` restricted to ``loss_mask [H, W]``.
+    """Photometric (L1 + D-SSIM) plus depth loss of view ``v`` restricted to ``loss_mask [H, W]``
+    (bool; a tensor on the state's device, or numpy, which is copied there).
 
     Outside the mask the render is replaced by the target, so those pixels add neither error
     nor gradient (SSIM windows straddling the border still see both sides).
     """
     out = render_state(state, av, v, joints, config)
-    target = av.views.rgb[v]
-    m = torch.from_numpy(loss_mask)
+    target = av.views.target(v)
+    m = loss_mask if isinstance(loss_mask, torch.Tensor) else torch.from_numpy(loss_mask).to(state.device)
     comp = torch.where(m[..., None], out.rgb, target)
     loss = photometric_loss(comp, target, config.lambda_dssim)
     if config.depth_weight > 0:
@@ -421,20 +464,39 @@ def run_phase(
     index = [(s, v) for s, (av, _, _) in enumerate(sources) for v in range(len(av))]
     if not index or steps <= 0:
         return
-    for i in range(steps):
-        s, v = index[view_index(i, len(index), config.seed)]
-        av, masks, weight = sources[s]
-        loss = weight * view_loss(state, av, v, masks[v], joints, config)
-        for p in state.params.values():
-            p.grad = None
-        state.log_gain.grad = None
-        loss.backward()
-        with torch.no_grad():
-            _adam(state, config, i / max(steps, 1), trainable, lr_scale)
-        state.step += 1
-        state.losses.append(float(loss.detach()))
-        if callback is not None:
-            callback(state)
+    # The loss masks go to the device once, as the views did.
+    sources = [(av, torch.from_numpy(np.ascontiguousarray(m, bool)).to(state.device), w) for av, m, w in sources]
+    with progress("articulation", total=steps) as report:
+        for i in range(steps):
+            _phase_step(state, sources, index, i, steps, joints, config, trainable, lr_scale)
+            report.advance()
+            if callback is not None:
+                callback(state)
+
+
+def _phase_step(
+    state: ArticulationState,
+    sources: Sequence[tuple[ArticulatedViews, torch.Tensor, float]],
+    index: list[tuple[int, int]],
+    i: int,
+    steps: int,
+    joints: Sequence[Joint],
+    config: ArticulationConfig,
+    trainable: torch.Tensor | None,
+    lr_scale: float,
+) -> None:
+    """Step ``i`` of ``steps`` of a phase: one view's loss, its gradient, one Adam update."""
+    s, v = index[view_index(i, len(index), config.seed)]
+    av, masks, weight = sources[s]
+    loss = weight * view_loss(state, av, v, masks[v], joints, config)
+    for p in state.params.values():
+        p.grad = None
+    state.log_gain.grad = None
+    loss.backward()
+    with torch.no_grad():
+        _adam(state, config, i / max(steps, 1), trainable, lr_scale)
+    state.step += 1
+    state.losses.append(float(loss.detach()))
 
 
 def prune_faint(state: ArticulationState, config: ArticulationConfig, trainable: torch.Tensor | None) -> int:
@@ -456,13 +518,13 @@ def evaluate_psnr(
     appearance: PartAppearance | None = None,
 ) -> np.ndarray:
     """``[V]`` PSNR (dB) of the twin at each view's joint states, hand pixels excluded."""
-    state = ArticulationState.from_params(params, 1.0, appearance)
+    state = ArticulationState.from_params(params, 1.0, appearance, device=av.views.device)
     out = []
     for v in range(len(av)):
         with torch.no_grad():
             r = render_state(state, av, v, joints, config)
-        keep = torch.from_numpy(~av.hand[v])
-        out.append(psnr(r.rgb[keep], av.views.rgb[v][keep]))
+        keep = torch.from_numpy(~av.hand[v]).to(state.device)
+        out.append(psnr(r.rgb[keep], av.views.target(v)[keep]))
     return np.asarray(out)
 
 

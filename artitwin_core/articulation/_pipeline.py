@@ -25,10 +25,16 @@ from artitwin_core.articulation._optimize import (
     uncovered_background,
 )
 from artitwin_core.articulation._partition import partition_gaussians, surface_hits
-from artitwin_core.capture import Capture
-from artitwin_core.gaussians import LABEL_BACKGROUND, LABEL_INTERIOR, LABEL_PART, GaussianParams
+from artitwin_core.capture import Capture, downscale_rgb
+from artitwin_core.gaussians import (
+    LABEL_BACKGROUND,
+    LABEL_INTERIOR,
+    LABEL_PART,
+    GaussianParams,
+    resolve_backend,
+)
 from artitwin_core.joints import Joint
-from artitwin_core.masks import MaskSequence
+from artitwin_core.masks import MaskSequence, downscale_masks
 from artitwin_core.reconstruction import make_views, scene_extent, split_frames
 
 
@@ -77,8 +83,10 @@ def dynamic_views(
     masks: MaskSequence,
     joints: Sequence[Joint],
     frames: Sequence[int],
+    device: torch.device | str | None = None,
 ) -> ArticulatedViews:
-    """Views of dynamic ``frames`` with canonical poses ``world_from_camera [T, 4, 4]``."""
+    """Views of dynamic ``frames`` with canonical poses ``world_from_camera [T, 4, 4]``, their
+    tensors (and each view's part motions) on ``device`` (default CPU)."""
     frames = [int(f) for f in frames]
     q = (
         np.stack([np.asarray(j.q, np.float64)[frames] for j in joints], 1)
@@ -86,24 +94,26 @@ def dynamic_views(
         else np.zeros((len(frames), 0))
     )
     return ArticulatedViews(
-        views=make_views(dynamic, world_from_camera, frames),
+        views=make_views(dynamic, world_from_camera, frames, device=device),
         q=q,
         part=np.asarray(masks.part[frames]),
         hand=np.asarray(masks.hand[frames], bool),
-    )
+    ).with_tables(joints)
 
 
-def static_views(static: Capture, world_from_camera: np.ndarray, num_joints: int) -> ArticulatedViews:
-    """Views of every static frame (parts closed, nothing masked)."""
+def static_views(
+    static: Capture, world_from_camera: np.ndarray, num_joints: int, device: torch.device | str | None = None
+) -> ArticulatedViews:
+    """Views of every static frame (parts closed, nothing masked), on ``device`` (default CPU)."""
     frames = list(range(static.num_frames))
-    views = make_views(static, world_from_camera, frames)
+    views = make_views(static, world_from_camera, frames, device=device)
     _, h, w, _ = static.rgb.shape
     return ArticulatedViews(
         views=views,
         q=np.zeros((len(frames), num_joints)),
         part=np.zeros((len(frames), h, w), np.uint8),
         hand=np.zeros((len(frames), h, w), bool),
-    )
+    ).with_motions(np.broadcast_to(np.eye(4), (len(frames), num_joints, 4, 4)))
 
 
 def label_counts(labels: np.ndarray, num_joints: int) -> dict[str, int]:
@@ -169,10 +179,15 @@ def articulate(
     joints = list(joints)
     dyn_poses = np.asarray(dynamic_world_from_camera, np.float64)
     _check_inputs(dynamic, dyn_poses, masks, joints)
+    if config.max_side is not None:  # the training resolution: captures and masks downscaled together
+        static, dynamic = downscale_rgb(static, config.max_side), downscale_rgb(dynamic, config.max_side)
+        masks = downscale_masks(masks, dynamic.rgb_size)
+    backend = resolve_backend(config.backend)  # every tensor below lives on its device
+    config, dev = replace(config, backend=backend.name), backend.device
     seconds: dict[str, float] = {}
     train_frames, test_frames = split_frames(dynamic.num_frames, config.holdout_every)
-    train_av = dynamic_views(dynamic, dyn_poses, masks, joints, train_frames)
-    test_av = dynamic_views(dynamic, dyn_poses, masks, joints, test_frames) if test_frames else None
+    train_av = dynamic_views(dynamic, dyn_poses, masks, joints, train_frames, dev)
+    test_av = dynamic_views(dynamic, dyn_poses, masks, joints, test_frames, dev) if test_frames else None
 
     def heldout(
         params: GaussianParams, js: Sequence[Joint], appearance: PartAppearance | None = None
@@ -182,15 +197,15 @@ def articulate(
         return float(np.mean(evaluate_psnr(params, test_av, js, config, appearance)))
 
     t0 = time.perf_counter()
-    st_av = static_views(static, np.asarray(static_world_from_camera, np.float64), len(joints))
+    st_av = static_views(static, np.asarray(static_world_from_camera, np.float64), len(joints), dev)
     seen_static = surface_hits(
-        canonical.means, st_av.views.cam_from_world.numpy(), st_av.views.intrinsics, st_av.views.depth.numpy(),
-        st_av.views.depth_weight.numpy(), config.partition.depth_tol_m,
+        canonical.means, st_av.views.cam_from_world.cpu().numpy(), st_av.views.intrinsics,
+        st_av.views.depth.cpu().numpy(), st_av.views.depth_weight.cpu().numpy(), config.partition.depth_tol_m,
     )  # fmt: skip
     votes = partition_gaussians(
-        canonical.means, joints, masks, train_frames, train_av.views.cam_from_world.numpy().astype(np.float64),
-        train_av.views.intrinsics, train_av.views.depth.numpy(), train_av.views.depth_weight.numpy(), config.partition,
-        seen_closed=seen_static,
+        canonical.means, joints, masks, train_frames, train_av.views.cam_from_world.cpu().numpy().astype(np.float64),
+        train_av.views.intrinsics, train_av.views.depth.cpu().numpy(), train_av.views.depth_weight.cpu().numpy(),
+        config.partition, seen_closed=seen_static,
     )  # fmt: skip
     labelled = replace(canonical, labels=votes.labels)
     seconds["partition"] = time.perf_counter() - t0
@@ -205,7 +220,7 @@ def articulate(
     appearance = None
     if joints and config.appearance_knots:
         appearance = PartAppearance.neutral(train_av.q, config.appearance_knots)
-    state = ArticulationState.from_params(labelled, extent, appearance)
+    state = ArticulationState.from_params(labelled, extent, appearance, device=dev)
     region = part_regions(state, train_av, joints, config)
     uncovered = np.zeros_like(region)
     bg_seeds = None
@@ -216,7 +231,7 @@ def articulate(
         )
     seeds = seed_unexplained(state, train_av, region, joints, config)
     n_before = state.num_gaussians
-    state.edit(torch.ones(n_before, dtype=torch.bool), _concat(bg_seeds, seeds))
+    state.edit(torch.ones(n_before, dtype=torch.bool, device=dev), _concat(bg_seeds, seeds))
     seconds["seed"] = time.perf_counter() - t0
 
     t0 = time.perf_counter()

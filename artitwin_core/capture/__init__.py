@@ -11,9 +11,10 @@ from artitwin_core.capture._calibrate import (
     calibrate_depth,
     estimate_depth_calibration,
 )
-from artitwin_core.capture._common import depth_intrinsics_from_rgb, scale_intrinsics
+from artitwin_core.capture._common import depth_intrinsics_from_rgb, downscale_rgb, scale_intrinsics
 from artitwin_core.capture._detect import FORMATS, detect_format, read_capture, recording_files
 from artitwin_core.capture._drift import DriftSignificance, PoseDrift
+from artitwin_core.capture._keyframes import KeyframeConfig, KeyframeSelection, select_keyframes
 from artitwin_core.capture._lag import PoseLag, PoseLagConfig, correct_pose_lag, estimate_pose_lag
 from artitwin_core.capture._nerfstudio import read_nerfstudio, write_nerfstudio
 from artitwin_core.capture._options import ReadOptions
@@ -26,6 +27,8 @@ from artitwin_core.capture._types import Capture, intrinsics_matrix
 __all__ = [
     "FORMATS",
     "Capture",
+    "KeyframeConfig",
+    "KeyframeSelection",
     "DepthCalibration",
     "DepthCalibrationConfig",
     "DriftSignificance",
@@ -38,6 +41,7 @@ __all__ = [
     "correct_pose_lag",
     "depth_intrinsics_from_rgb",
     "detect_format",
+    "downscale_rgb",
     "estimate_depth_calibration",
     "estimate_pose_lag",
     "find_scene_recordings",
@@ -49,6 +53,7 @@ __all__ = [
     "read_stray",
     "recording_files",
     "scale_intrinsics",
+    "select_keyframes",
     "write_nerfstudio",
     "write_r3d",
     "write_record3d_exr",

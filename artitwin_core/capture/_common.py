@@ -3,6 +3,7 @@ depth validation, intrinsics scaling, and assembling the final :class:`Capture`.
 
 from __future__ import annotations
 
+import dataclasses
 import io
 import re
 from collections.abc import Sequence
@@ -69,10 +70,7 @@ class ByteBudget:
 def check_capture_size(source: str | Path, n: int, rgb_wh: tuple[int, int], depth_wh: tuple[int, int],
                        options: ReadOptions) -> None:
     """Refuse to allocate a :class:`Capture` larger than ``options.max_total_bytes``."""
-    w, h = rgb_wh
-    if options.rgb_max_width is not None and w > options.rgb_max_width:
-        h = max(1, round(h * options.rgb_max_width / w))
-        w = options.rgb_max_width
+    w, h = (0, 0) if options.skip_rgb else options.rgb_size(*rgb_wh)
     per_frame = w * h * 3 + depth_wh[0] * depth_wh[1] * 5
     if n * per_frame > options.max_total_bytes:
         raise input_error(
@@ -240,6 +238,32 @@ def check_capture_for_writing(capture: Capture) -> None:
         raise ValueError("frame_ids must be non-negative and strictly increasing")
 
 
+def downscale_rgb(capture: Capture, max_side: int | None) -> Capture:
+    """``capture`` with its RGB frames downscaled (area interpolation) so that their longer side is
+    at most ``max_side`` pixels, and the RGB intrinsics scaled to match (depth untouched); the
+    capture itself when it is already that small or ``max_side`` is None."""
+    if max_side is None:
+        return capture
+    w, h = capture.rgb_size
+    nw, nh = ReadOptions(rgb_max_side=int(max_side)).rgb_size(w, h)
+    if (nw, nh) == (w, h):
+        return capture
+    rgb = np.empty((capture.num_frames, nh, nw, 3), np.uint8)
+    for t in range(capture.num_frames):
+        rgb[t] = cv2.resize(capture.rgb[t], (nw, nh), interpolation=cv2.INTER_AREA)
+    return dataclasses.replace(capture, rgb=rgb, rgb_intrinsics=scale_intrinsics(capture.rgb_intrinsics, nw / w, nh / h))
+
+
+def fit_rgb(frame: np.ndarray, options: ReadOptions) -> np.ndarray:
+    """A decoded ``[H, W, 3]`` frame at the size ``options`` reads (area interpolation), right
+    after decoding, so that only the working resolution is ever held."""
+    h, w = frame.shape[:2]
+    nw, nh = options.rgb_size(w, h)
+    if (nw, nh) == (w, h):
+        return frame
+    return cv2.resize(frame, (nw, nh), interpolation=cv2.INTER_AREA)
+
+
 def assemble(
     *,
     rgb: Sequence[np.ndarray],
@@ -253,18 +277,32 @@ def assemble(
     distortion: np.ndarray | None,
     source_format: str,
     options: ReadOptions,
+    rgb_source_wh: tuple[int, int] | None = None,
 ) -> Capture:
-    """Stack per-frame arrays into a :class:`Capture`, downscaling RGB if the options ask."""
+    """Stack per-frame arrays into a :class:`Capture` at the RGB size the options ask.
+
+    ``rgb_intrinsics`` are at the stored size ``rgb_source_wh`` (default: the frames' own size).
+    Frames already at the options' size (:func:`fit_rgb`) are kept; larger ones are downscaled
+    here. With ``options.skip_rgb`` the frames are not given and ``rgb`` becomes a read-only
+    zero view of the size a full read gives."""
     rgb_intr = np.asarray(rgb_intrinsics, dtype=np.float64).reshape(-1, 4)
     frames = list(rgb)
-    if options.rgb_max_width is not None and frames and frames[0].shape[1] > options.rgb_max_width:
-        h, w = frames[0].shape[:2]
-        nw = int(options.rgb_max_width)
-        nh = max(1, round(h * nw / w))
-        frames = [cv2.resize(f, (nw, nh), interpolation=cv2.INTER_AREA) for f in frames]
+    n = len(depth)
+    if rgb_source_wh is None:
+        if not frames:
+            raise ValueError("assemble: give rgb_source_wh when no RGB frames are given")
+        rgb_source_wh = (frames[0].shape[1], frames[0].shape[0])
+    w, h = (int(v) for v in rgb_source_wh)
+    nw, nh = options.rgb_size(w, h)
+    if options.skip_rgb:
+        stacked = np.broadcast_to(np.zeros((1, 1, 1, 3), np.uint8), (n, nh, nw, 3))
+    else:
+        frames = [f if f.shape[:2] == (nh, nw) else cv2.resize(f, (nw, nh), interpolation=cv2.INTER_AREA) for f in frames]
+        stacked = np.stack(frames).astype(np.uint8, copy=False)
+    if (nw, nh) != (w, h):
         rgb_intr = scale_intrinsics(rgb_intr, nw / w, nh / h)
     return Capture(
-        rgb=np.stack(frames).astype(np.uint8, copy=False),
+        rgb=stacked,
         depth=np.stack(depth).astype(np.float32, copy=False),
         confidence=None if confidence is None else np.stack(confidence).astype(np.uint8, copy=False),
         rgb_intrinsics=rgb_intr,

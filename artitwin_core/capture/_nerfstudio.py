@@ -28,6 +28,7 @@ from artitwin_core.capture._common import (
     depth_intrinsics_from_rgb,
     encode_jpeg,
     encode_png,
+    fit_rgb,
     frame_number,
     input_error,
     read_file_bytes,
@@ -172,7 +173,8 @@ def read_nerfstudio(path: str | Path, options: ReadOptions | None = None) -> Cap
         check_pose(pose, tp, num)
         if depth_wh is None:
             check_capture_size(root, len(picked), wh0, (wh0[0], wh0[1]), options)
-        rgb.append(decode_rgb(read_file_bytes(img_path, budget, num), img_path, num, wh0, budget))
+        if not options.skip_rgb:
+            rgb.append(fit_rgb(decode_rgb(read_file_bytes(img_path, budget, num), img_path, num, wh0, budget), options))
         raw = decode_png_depth(read_file_bytes(d_path, budget, num), d_path, num, depth_wh, budget)
         depth_wh = (raw.shape[1], raw.shape[0])
         depth.append(clean_depth(raw.astype(np.float32) * np.float32(scale), d_path, num, options))
@@ -184,7 +186,7 @@ def read_nerfstudio(path: str | Path, options: ReadOptions | None = None) -> Cap
         rgb=rgb, depth=depth, confidence=None, rgb_intrinsics=rgb_intr,
         depth_intrinsics=depth_intrinsics_from_rgb(rgb_intr, wh0, depth_wh),
         world_from_camera=np.array(poses), timestamps=np.array(stamps), frame_ids=[n for n, _ in picked],
-        distortion=dist0, source_format=FORMAT, options=options,
+        distortion=dist0, source_format=FORMAT, options=options, rgb_source_wh=wh0,
     )
 
 

@@ -28,6 +28,7 @@ from artitwin_core.capture._common import (
     decode_rgb,
     depth_intrinsics_from_rgb,
     encode_jpeg,
+    fit_rgb,
     input_error,
 )
 from artitwin_core.capture._lzfse import safe_decompress
@@ -134,8 +135,9 @@ def read_r3d(path: str | Path, options: ReadOptions | None = None) -> Capture:
         rgb, depth, conf, poses, intr, stamps = [], [], [], [], [], []
         for i in picked:
             src = f"{path}!rgbd/{i}"
-            rgb.append(decode_rgb(_read_entry(zf, entries[i]["jpg"], path, budget, i), src + ".jpg", i,
-                                  meta.rgb_wh, budget))
+            if not options.skip_rgb:
+                rgb.append(fit_rgb(decode_rgb(_read_entry(zf, entries[i]["jpg"], path, budget, i), src + ".jpg", i,
+                                              meta.rgb_wh, budget), options))
             raw = _read_entry(zf, entries[i]["depth"], path, budget, i)
             budget.take(4 * n_depth, src + ".depth", i)
             try:
@@ -163,7 +165,7 @@ def read_r3d(path: str | Path, options: ReadOptions | None = None) -> Capture:
         rgb=rgb, depth=depth, confidence=conf if has_conf[0] else None, rgb_intrinsics=rgb_intr,
         depth_intrinsics=depth_intrinsics_from_rgb(rgb_intr, meta.rgb_wh, depth_wh),
         world_from_camera=np.array(poses), timestamps=np.array(stamps), frame_ids=picked,
-        distortion=None, source_format=FORMAT, options=options,
+        distortion=None, source_format=FORMAT, options=options, rgb_source_wh=meta.rgb_wh,
     )
 
 

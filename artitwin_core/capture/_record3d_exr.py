@@ -22,6 +22,7 @@ from artitwin_core.capture._common import (
     decode_rgb,
     depth_intrinsics_from_rgb,
     encode_jpeg,
+    fit_rgb,
     input_error,
     read_file_bytes,
 )
@@ -111,7 +112,9 @@ def read_record3d_exr(folder: str | Path, options: ReadOptions | None = None) ->
     check_capture_size(root, len(picked), meta.rgb_wh, first_depth, options)
     rgb, depth, poses, intr, stamps = [], [], [], [], []
     for i in picked:
-        rgb.append(decode_rgb(read_file_bytes(rgb_files[i], budget, i), rgb_files[i], i, meta.rgb_wh, budget))
+        if not options.skip_rgb:
+            rgb.append(fit_rgb(decode_rgb(read_file_bytes(rgb_files[i], budget, i), rgb_files[i], i, meta.rgb_wh, budget),
+                               options))
         d = d0 if i == picked[0] else _read_exr_depth(depth_files[i], i, first_depth, budget)
         depth.append(clean_depth(d, depth_files[i], i, options))
         pose = meta.world_from_camera(i, meta_path)
@@ -124,7 +127,7 @@ def read_record3d_exr(folder: str | Path, options: ReadOptions | None = None) ->
         rgb=rgb, depth=depth, confidence=None, rgb_intrinsics=rgb_intr,
         depth_intrinsics=depth_intrinsics_from_rgb(rgb_intr, meta.rgb_wh, first_depth),
         world_from_camera=np.array(poses), timestamps=np.array(stamps), frame_ids=picked,
-        distortion=None, source_format=FORMAT, options=options,
+        distortion=None, source_format=FORMAT, options=options, rgb_source_wh=meta.rgb_wh,
     )
 
 

@@ -26,6 +26,7 @@ from artitwin_core.capture._common import (
     decode_png_depth,
     depth_intrinsics_from_rgb,
     encode_png,
+    fit_rgb,
     input_error,
     read_file_bytes,
 )
@@ -215,7 +216,7 @@ def read_stray(folder: str | Path, options: ReadOptions | None = None) -> Captur
             stamps.append(row[0] - odo[0, 0] if has_stamps else f / fps)
 
         rgb, pos = [], 0
-        for f in picked:
+        for f in [] if options.skip_rgb else picked:
             while pos < f:
                 if not cap.grab():
                     break
@@ -227,7 +228,7 @@ def read_stray(folder: str | Path, options: ReadOptions | None = None) -> Captur
                                   _FIX, f)
             pos += 1
             budget.take(bgr.nbytes, video_path, f)
-            rgb.append(cv2.cvtColor(bgr, cv2.COLOR_BGR2RGB))
+            rgb.append(fit_rgb(cv2.cvtColor(bgr, cv2.COLOR_BGR2RGB), options))
     finally:
         cap.release()
     rgb_intr = np.tile(k, (len(picked), 1))
@@ -235,7 +236,7 @@ def read_stray(folder: str | Path, options: ReadOptions | None = None) -> Captur
         rgb=rgb, depth=depth, confidence=conf if has_conf else None, rgb_intrinsics=rgb_intr,
         depth_intrinsics=depth_intrinsics_from_rgb(rgb_intr, (vw, vh), depth_wh),
         world_from_camera=np.array(poses), timestamps=np.array(stamps), frame_ids=picked,
-        distortion=None, source_format=FORMAT, options=options,
+        distortion=None, source_format=FORMAT, options=options, rgb_source_wh=(vw, vh),
     )
 
 

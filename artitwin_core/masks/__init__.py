@@ -1,5 +1,5 @@
 """Part and hand masks over the frames of a recording."""
 
-from artitwin_core.masks._types import MaskSequence
+from artitwin_core.masks._types import MaskSequence, downscale_masks
 
-__all__ = ["MaskSequence"]
+__all__ = ["MaskSequence", "downscale_masks"]

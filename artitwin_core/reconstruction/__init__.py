@@ -14,9 +14,9 @@ from artitwin_core.reconstruction._config import (
     TrainConfig,
     split_frames,
 )
-from artitwin_core.reconstruction._evaluate import EvalResult, evaluate_views, render_view
+from artitwin_core.reconstruction._evaluate import EvalResult, ModelRenderer, evaluate_views, render_view
 from artitwin_core.reconstruction._init import init_gaussians
-from artitwin_core.reconstruction._pipeline import Reconstruction, reconstruct
+from artitwin_core.reconstruction._pipeline import Reconstruction, reconstruct, start_training
 from artitwin_core.reconstruction._ply import read_ply, write_ply
 from artitwin_core.reconstruction._poses import PoseRefinement, pose_difference, refine_poses
 from artitwin_core.reconstruction._sensor import SENSOR_EFFECTS, SensorModel
@@ -34,6 +34,7 @@ __all__ = [
     "SensorModel",
     "EvalResult",
     "InitConfig",
+    "ModelRenderer",
     "PoseRefineConfig",
     "PoseRefinement",
     "Reconstruction",
@@ -51,6 +52,7 @@ __all__ = [
     "render_view",
     "scene_extent",
     "split_frames",
+    "start_training",
     "train",
     "train_step",
     "write_ply",

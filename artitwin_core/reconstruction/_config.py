@@ -8,6 +8,8 @@ from __future__ import annotations
 
 from dataclasses import dataclass, field
 
+import numpy as np
+
 from artitwin_core._errors import InputError
 from artitwin_core.reconstruction._sensor import check_sensor_effects
 
@@ -40,12 +42,17 @@ class PoseRefineConfig:
 
     Attributes:
         enabled: False keeps the capture poses untouched.
-        max_features: SIFT features per image.
+        max_features: SIFT features per image; ``None`` scales them with the image:
+            ``4 sqrt(W H)`` clamped to [1024, 8192] (1774 at 512x384, 2217 at 640x480, 6651 at
+            1920x1440), since a smaller image holds fewer distinct keypoints.
         sift_peak_threshold: SIFT's contrast threshold (COLMAP's default 0.0067; lower finds
             more features in small or low-contrast frames).
         sequential_overlap: frames matched against each following frame when the recording
             has more than ``exhaustive_max_frames`` frames (else every pair is matched).
         exhaustive_max_frames: up to this many frames every pair is matched.
+        loop_closure_pairs: with sequential matching, each frame is also matched with up to this
+            many frames outside its sequential window whose views overlap (cameras close and
+            looking the same way, by the capture poses): the loops of a sweep that returns.
         prior_position_std_m: standard deviation of the capture camera centres used as position
             priors in bundle adjustment, metres (they hold the world frame and metric scale).
         iterations: rounds of (triangulate from the current poses, adjust with depth).
@@ -55,17 +62,20 @@ class PoseRefineConfig:
             capture pose is not trusted (kept as captured, reported).
         min_refined_frac: if fewer than this fraction of frames could be refined, the whole
             refinement is abandoned and the capture poses kept.
-        num_threads: CPU threads COLMAP may use. 1 (the default) makes the result
-            deterministic: with more, COLMAP's threads race (feature order, RANSAC, Ceres) and
-            the same recording's poses differed by up to 2.3 cm between runs
+        num_threads: CPU threads COLMAP may use to match, triangulate and adjust. 1 (the
+            default) makes the result deterministic: with more, COLMAP's threads race (RANSAC,
+            Ceres) and the same recording's poses differed by up to 2.3 cm between runs
             (low-texture-door), at about the same run time on 2 cores.
+        extraction_threads: CPU threads extracting SIFT features (0 = every available core).
+            Each image's features do not depend on the thread that extracts them.
     """
 
     enabled: bool = True
-    max_features: int = 4096
+    max_features: int | None = 4096
     sift_peak_threshold: float = 0.0067
     sequential_overlap: int = 10
     exhaustive_max_frames: int = 80
+    loop_closure_pairs: int = 0
     prior_position_std_m: float = 0.05
     iterations: int = 2
     min_track_points: int = 15
@@ -73,6 +83,13 @@ class PoseRefineConfig:
     max_correction_deg: float = 8.0
     min_refined_frac: float = 0.5
     num_threads: int = 1
+    extraction_threads: int = 1
+
+    def features_for(self, width: int, height: int) -> int:
+        """SIFT features per image of ``width x height`` pixels (``max_features``, or scaled)."""
+        if self.max_features is not None:
+            return int(self.max_features)
+        return int(np.clip(round(4.0 * np.sqrt(width * height)), 1024, 8192))
 
 
 @dataclass(frozen=True)
@@ -105,6 +122,9 @@ class TrainConfig:
         opacity_reset_value: opacity is clamped to this at a reset.
         background: RGB in [0, 1] behind everything.
         backend: rasterizer backend (``"auto"``, ``"cpu"``, ``"cuda"``).
+        max_side: train on the RGB frames downscaled to at most this many pixels on the long
+            side (None: as the capture holds them); a CPU budget: a step's cost grows with the
+            pixels. The model is still evaluated and rendered at any resolution.
         seed: random view order and split samples.
         sensor_effects: camera effects learned with the Gaussians (``_sensor.SENSOR_EFFECTS``:
             exposure_white_balance, vignetting, depth_scale_offset); empty = an ideal camera.
@@ -136,6 +156,7 @@ class TrainConfig:
     opacity_reset_value: float = 0.01
     background: tuple[float, float, float] = (0.0, 0.0, 0.0)
     backend: str = "auto"
+    max_side: int | None = None
     seed: int = 0
     sensor_effects: tuple[str, ...] = ()
     lr_sensor: float = 0.01

@@ -9,7 +9,7 @@ import numpy as np
 import torch
 
 from artitwin_core.capture import Capture
-from artitwin_core.gaussians import GaussianParams, rasterize
+from artitwin_core.gaussians import GaussianParams, rasterize, resolve_backend
 from artitwin_core.geometry import invert_se3
 from artitwin_core.reconstruction._losses import psnr, ssim
 from artitwin_core.reconstruction._sensor import SensorModel
@@ -46,6 +46,56 @@ class EvalResult:
         return out
 
 
+class ModelRenderer:
+    """A model's tensors on the device ``backend`` resolves to (``resolve_backend``), copied there
+    once, then rendered into any number of pinhole cameras (predictions, evaluation, reports).
+
+    Args:
+        params: the Gaussians.
+        background: RGB in [0, 1] behind everything.
+        backend: ``"auto"`` (CUDA with gsplat when present, else CPU), ``"cpu"``, ``"reference"`` or ``"cuda"``.
+    """
+
+    def __init__(self, params: GaussianParams, *, background: Sequence[float] = (0.0, 0.0, 0.0), backend: str = "auto"):
+        resolved = resolve_backend(backend)
+        dev = self.device = resolved.device
+        self.backend = resolved.name
+
+        def up(a: np.ndarray) -> torch.Tensor:
+            return torch.from_numpy(np.ascontiguousarray(a, np.float32)).to(dev)
+
+        self.means, self.quats_wxyz = up(params.means), up(params.quats_wxyz)
+        self.log_scales, self.opacity_logits, self.sh = up(params.log_scales), up(params.opacity_logits), up(params.sh)
+        self.background = torch.tensor([float(c) for c in background], dtype=torch.float32, device=dev)
+
+    def render(
+        self,
+        world_from_camera: np.ndarray,
+        intrinsics: Sequence[float],
+        width: int,
+        height: int,
+        *,
+        means: torch.Tensor | None = None,
+        quats_wxyz: torch.Tensor | None = None,
+        sh: torch.Tensor | None = None,
+    ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """Render into one camera (see :func:`render_view`); ``means``, ``quats_wxyz`` and ``sh``
+        replace the model's own (same device and shapes: an articulated twin moves its parts)."""
+        with torch.no_grad():
+            out = rasterize(
+                self.means if means is None else means, self.quats_wxyz if quats_wxyz is None else quats_wxyz,
+                self.log_scales, self.opacity_logits, self.sh if sh is None else sh,
+                invert_se3(np.asarray(world_from_camera, np.float64)),
+                tuple(float(x) for x in intrinsics), int(width), int(height),
+                background=self.background, backend=self.backend,
+            )  # fmt: skip
+            return (
+                out.rgb.clamp(0, 1).cpu().numpy(),
+                out.expected_depth(1e-3).cpu().numpy(),
+                out.alpha.cpu().numpy(),
+            )
+
+
 def render_view(
     params: GaussianParams,
     world_from_camera: np.ndarray,
@@ -56,31 +106,21 @@ def render_view(
     background: Sequence[float] = (0.0, 0.0, 0.0),
     backend: str = "auto",
 ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """Render a model into one pinhole camera.
+    """Render a model into one pinhole camera (many cameras: :class:`ModelRenderer` copies the
+    model to the device once).
 
     Args:
         params: the Gaussians.
         world_from_camera: ``[4, 4]`` camera pose, OpenCV axes, metres.
         intrinsics: ``(fx, fy, cx, cy)`` pixels.
         width, height: image size, pixels.
+        backend: ``"auto"`` (CUDA with gsplat when present, else CPU), ``"cpu"``, ``"reference"``, ``"cuda"``.
 
     Returns:
         rgb ``[H, W, 3]`` float32 in [0, 1], expected depth ``[H, W]`` float32 metres (0 where
         nothing is rendered), alpha ``[H, W]`` float32.
     """
-    with torch.no_grad():
-        out = rasterize(
-            torch.from_numpy(params.means), torch.from_numpy(params.quats_wxyz),
-            torch.from_numpy(params.log_scales), torch.from_numpy(params.opacity_logits),
-            torch.from_numpy(params.sh), invert_se3(np.asarray(world_from_camera, np.float64)),
-            tuple(float(x) for x in intrinsics), int(width), int(height),
-            background=torch.tensor(list(background), dtype=torch.float32), backend=backend,
-        )  # fmt: skip
-        return (
-            out.rgb.clamp(0, 1).numpy(),
-            out.expected_depth(1e-3).numpy(),
-            out.alpha.numpy(),
-        )
+    return ModelRenderer(params, background=background, backend=backend).render(world_from_camera, intrinsics, width, height)
 
 
 def evaluate_views(
@@ -110,10 +150,9 @@ def evaluate_views(
     frames = [int(f) for f in frames]
     _, h, w, _ = capture.rgb.shape
     ps, ss, dm, dg = [], [], [], []
+    renderer = ModelRenderer(params, background=background, backend=backend) if frames else None
     for t in frames:
-        rgb, depth, alpha = render_view(
-            params, world_from_camera[t], capture.rgb_intrinsics[t], w, h, background=background, backend=backend
-        )
+        rgb, depth, alpha = renderer.render(world_from_camera[t], capture.rgb_intrinsics[t], w, h)
         sensor_depth = depth
         if sensor is not None:
             rgb = sensor.apply_rgb(rgb, t, capture.rgb_intrinsics[t])

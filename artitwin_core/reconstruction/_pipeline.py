@@ -4,18 +4,18 @@ from __future__ import annotations
 
 import time
 from collections.abc import Callable
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import numpy as np
 
-from artitwin_core.capture import Capture
-from artitwin_core.gaussians import GaussianParams
-from artitwin_core.reconstruction._config import ReconstructionConfig, split_frames
+from artitwin_core.capture import Capture, downscale_rgb
+from artitwin_core.gaussians import GaussianParams, resolve_backend
+from artitwin_core.reconstruction._config import InitConfig, ReconstructionConfig, TrainConfig, split_frames
 from artitwin_core.reconstruction._evaluate import EvalResult, evaluate_views
 from artitwin_core.reconstruction._init import init_gaussians
 from artitwin_core.reconstruction._poses import PoseRefinement, refine_poses
 from artitwin_core.reconstruction._sensor import SensorModel
-from artitwin_core.reconstruction._train import TrainState, make_views, scene_extent, train
+from artitwin_core.reconstruction._train import TrainState, TrainViews, make_views, scene_extent, train
 
 
 @dataclass(frozen=True)
@@ -46,6 +46,26 @@ class Reconstruction:
     sensor: SensorModel | None = None
 
 
+def start_training(
+    capture: Capture,
+    world_from_camera: np.ndarray,
+    frames: list[int],
+    init: InitConfig,
+    config: TrainConfig,
+) -> tuple[TrainState, TrainViews, TrainConfig]:
+    """Seed Gaussians from the depth of ``frames`` and put the state and the views (at the
+    training resolution, ``config.max_side``) on the device ``config.backend`` resolves to
+    (``resolve_backend``: ``"auto"`` is CUDA with gsplat when present). Returns ``(state, views,
+    config)`` with ``config.backend`` resolved, for ``train``."""
+    backend = resolve_backend(config.backend)
+    config = replace(config, backend=backend.name)
+    capture = downscale_rgb(capture, config.max_side)
+    params0 = init_gaussians(capture, world_from_camera, frames, init, config.sh_degree)
+    views = make_views(capture, world_from_camera, frames, init.min_confidence, device=backend.device)
+    state = TrainState.from_params(params0, scene_extent(world_from_camera[frames]), device=backend.device)
+    return state, views, config
+
+
 def reconstruct(
     capture: Capture,
     config: ReconstructionConfig = ReconstructionConfig(),
@@ -69,13 +89,12 @@ def reconstruct(
 
     train_frames, test_frames = split_frames(capture.num_frames, config.holdout_every)
     t0 = time.perf_counter()
-    params0 = init_gaussians(capture, poses.world_from_camera, train_frames, config.init, config.train.sh_degree)
-    views = make_views(capture, poses.world_from_camera, train_frames, config.init.min_confidence)
-    state = TrainState.from_params(params0, scene_extent(poses.world_from_camera[train_frames]))
+    state, views, train_config = start_training(capture, poses.world_from_camera, train_frames, config.init, config.train)
+    initial = state.num_gaussians
     seconds["init"] = time.perf_counter() - t0
 
     t0 = time.perf_counter()
-    train(state, views, config.train, callback=callback)
+    train(state, views, train_config, callback=callback)
     seconds["train"] = time.perf_counter() - t0
 
     t0 = time.perf_counter()
@@ -83,7 +102,7 @@ def reconstruct(
     sensor = state.sensor_model()
     evaluation = evaluate_views(
         params, capture, poses.world_from_camera, test_frames, gt_depth=gt_depth,
-        background=config.train.background, backend=config.train.backend, sensor=sensor,
+        background=config.train.background, backend=train_config.backend, sensor=sensor,
     )  # fmt: skip
     seconds["evaluate"] = time.perf_counter() - t0
     return Reconstruction(
@@ -92,7 +111,7 @@ def reconstruct(
         train_frames=train_frames,
         test_frames=test_frames,
         evaluation=evaluation,
-        initial_gaussians=params0.num_gaussians,
+        initial_gaussians=initial,
         steps=state.step,
         losses=np.asarray(state.losses),
         seconds=seconds,

@@ -20,12 +20,14 @@ triangulation) falls back to the capture poses with a note; this never raises fo
 from __future__ import annotations
 
 import logging
+import os
 import tempfile
 from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
 
+from artitwin_core import progress
 from artitwin_core.capture import Capture
 from artitwin_core.geometry import invert_se3
 from artitwin_core.reconstruction._config import PoseRefineConfig
@@ -142,8 +144,10 @@ def refine_poses(capture: Capture, config: PoseRefineConfig = PoseRefineConfig()
     except ImportError:
         return _fallback(capture, "pycolmap is not installed (pip install pycolmap).")
     try:
-        with tempfile.TemporaryDirectory(prefix="artitwin-colmap-") as tmp:
-            return _refine(capture, config, pycolmap, Path(tmp))
+        with tempfile.TemporaryDirectory(prefix="artitwin-colmap-") as tmp, progress(
+            "pose refinement (features, matches, triangulate and adjust)", total=2 + config.iterations
+        ) as report:
+            return _refine(capture, config, pycolmap, Path(tmp), report)
     except Exception as exc:  # noqa: BLE001 -- COLMAP failures must never stop the pipeline
         log.warning("pose refinement failed: %s", exc)
         return _fallback(capture, f"COLMAP failed ({type(exc).__name__}: {exc}).")
@@ -178,7 +182,7 @@ def undistort_pixels(uv: np.ndarray, intrinsics: np.ndarray, k, iterations: int 
     return np.stack([intrinsics[:, 0] * x + intrinsics[:, 2], intrinsics[:, 1] * y + intrinsics[:, 3]], 1)
 
 
-def _refine(capture: Capture, config: PoseRefineConfig, pycolmap, tmp: Path) -> PoseRefinement:
+def _refine(capture: Capture, config: PoseRefineConfig, pycolmap, tmp: Path, report) -> PoseRefinement:
     from PIL import Image
 
     prev_level = pycolmap.logging.minloglevel
@@ -197,19 +201,29 @@ def _refine(capture: Capture, config: PoseRefineConfig, pycolmap, tmp: Path) -> 
         reader.camera_model = model
         reader.camera_params = ",".join(f"{x:.10g}" for x in params[0])
         extraction = pycolmap.FeatureExtractionOptions()
-        extraction.num_threads = config.num_threads
+        extraction.num_threads = config.extraction_threads or (os.cpu_count() or 1)
         extraction.use_gpu = False
-        extraction.sift.max_num_features = config.max_features
+        extraction.sift.max_num_features = config.features_for(*capture.rgb_size)
         extraction.sift.peak_threshold = config.sift_peak_threshold
         pycolmap.extract_features(
             db_path, image_dir, image_names=names, camera_mode=pycolmap.CameraMode.PER_IMAGE,
             reader_options=reader, extraction_options=extraction, device=pycolmap.Device.cpu,
         )  # fmt: skip
+        report.advance(info=f"{t_frames} frames")
         matching = pycolmap.FeatureMatchingOptions()
         matching.num_threads = config.num_threads
         matching.use_gpu = False
         if t_frames <= config.exhaustive_max_frames:
             pycolmap.match_exhaustive(db_path, matching_options=matching, device=pycolmap.Device.cpu)
+        elif config.loop_closure_pairs > 0:
+            pairs = match_pairs(capture, config.sequential_overlap, config.loop_closure_pairs)
+            listing = tmp / "pairs.txt"
+            listing.write_text("".join(f"{names[i]} {names[j]}\n" for i, j in pairs))
+            pairing = pycolmap.ImportedPairingOptions()
+            pairing.match_list_path = str(listing)
+            pycolmap.match_image_pairs(
+                db_path, matching_options=matching, pairing_options=pairing, device=pycolmap.Device.cpu
+            )
         else:
             pairing = pycolmap.SequentialPairingOptions()
             pairing.overlap = config.sequential_overlap
@@ -217,6 +231,7 @@ def _refine(capture: Capture, config: PoseRefineConfig, pycolmap, tmp: Path) -> 
                 db_path, matching_options=matching, pairing_options=pairing, device=pycolmap.Device.cpu
             )
 
+        report.advance()
         db = pycolmap.Database.open(db_path)
         try:
             verified = db.num_verified_image_pairs()
@@ -231,6 +246,7 @@ def _refine(capture: Capture, config: PoseRefineConfig, pycolmap, tmp: Path) -> 
             if len(tracks.points) < 3 * config.min_track_points:
                 return _fallback(capture, f"COLMAP triangulated only {len(tracks.points)} points (low texture?).")
             poses, observations, rms_px = adjust_with_depth(capture, poses, tracks, config, distortion)
+            report.advance(info=f"{len(tracks.points)} points")
         refined_raw = poses
         usable = observations >= config.min_track_points
         if usable.sum() < max(3, config.min_refined_frac * t_frames):
@@ -276,6 +292,34 @@ def _refine(capture: Capture, config: PoseRefineConfig, pycolmap, tmp: Path) -> 
         )
     finally:
         pycolmap.logging.minloglevel = prev_level
+
+
+def match_pairs(capture: Capture, overlap: int, loop_pairs: int, max_angle_deg: float = 30.0) -> list[tuple[int, int]]:
+    """Frame pairs ``(i, j)``, ``i < j``, to match in a long recording: each frame with the next
+    ``overlap`` frames, and with up to ``loop_pairs`` frames outside that window whose views
+    overlap most by the capture poses (optical axes within ``max_angle_deg``, centres closer than
+    the median depth): the loop closures of a sweep that comes back, found without a vocabulary tree.
+    """
+    t = capture.num_frames
+    pairs = {(i, j) for i in range(t) for j in range(i + 1, min(t, i + overlap + 1))}
+    if loop_pairs <= 0 or t <= overlap + 1:
+        return sorted(pairs)
+    depth = capture.depth[:, ::4, ::4]
+    with np.errstate(all="ignore"):
+        median = float(np.nanmedian(np.where(depth > 0, depth, np.nan))) if np.isfinite(depth).any() else 1.0
+    median = max(median if np.isfinite(median) else 1.0, 0.3)
+    centres = capture.world_from_camera[:, :3, 3]
+    axes = capture.world_from_camera[:, :3, 2]
+    dist = np.linalg.norm(centres[:, None] - centres[None], axis=-1) / median
+    cos = np.clip(axes @ axes.T, -1.0, 1.0)
+    score = dist + (1.0 - cos) * 10.0
+    far = np.abs(np.arange(t)[:, None] - np.arange(t)[None]) > overlap
+    ok = far & (cos >= np.cos(np.radians(max_angle_deg))) & (dist < 1.0)
+    for i in range(t):
+        cand = np.flatnonzero(ok[i])
+        for j in cand[np.argsort(score[i, cand])][:loop_pairs]:
+            pairs.add((min(i, int(j)), max(i, int(j))))
+    return sorted(pairs)
 
 
 @dataclass(frozen=True)

@@ -187,27 +187,32 @@ class SensorModel:
 class SensorParams:
     """The trainable form: leaf tensors with their own Adam moments, one row per training view."""
 
-    def __init__(self, effects, frames, intrinsics: np.ndarray, width: int, height: int, distortion=None) -> None:
-        """``distortion``: the RGB lens's ``k1 k2 p1 p2 [...]`` (None: pinhole), applied to every render."""
+    def __init__(
+        self, effects, frames, intrinsics: np.ndarray, width: int, height: int, distortion=None,
+        device: torch.device | str | None = None,
+    ) -> None:
+        """``distortion``: the RGB lens's ``k1 k2 p1 p2 [...]`` (None: pinhole), applied to every render.
+        Every tensor lives on ``device`` (default CPU), the device of the renders it is applied to."""
         self.effects = check_sensor_effects(effects)
         self.frames = [int(f) for f in frames]
         self.intrinsics = np.asarray(intrinsics, np.float64)
         self.size = (int(width), int(height))
+        self.device = dev = torch.device(device or "cpu")
         k0 = np.zeros(4)
         if distortion is not None:
             d = np.asarray(distortion, np.float64).ravel()[:4]
             k0[: len(d)] = d
-        self.distortion = torch.tensor(k0, dtype=torch.float64) if np.any(k0 != 0) else None
+        self.distortion = torch.tensor(k0, dtype=torch.float64, device=dev) if np.any(k0 != 0) else None
         v = len(self.frames)
         self.params: dict[str, torch.Tensor] = {}
         if "exposure_white_balance" in self.effects:
-            self.params["log_gain"] = torch.zeros(v, 3)
-            self.params["offset"] = torch.zeros(v, 3)
+            self.params["log_gain"] = torch.zeros(v, 3, device=dev)
+            self.params["offset"] = torch.zeros(v, 3, device=dev)
         if "vignetting" in self.effects:
-            self.params["vignetting"] = torch.zeros(2)
-            self._r2 = [torch.from_numpy(radius_sq(k, width, height).astype(np.float32)) for k in intrinsics]
+            self.params["vignetting"] = torch.zeros(2, device=dev)
+            self._r2 = [torch.from_numpy(radius_sq(k, width, height).astype(np.float32)).to(dev) for k in intrinsics]
         if "depth_scale_offset" in self.effects:
-            self.params["depth_affine"] = torch.tensor([1.0, 0.0])
+            self.params["depth_affine"] = torch.tensor([1.0, 0.0], device=dev)
         self._grids: dict[int, tuple[torch.Tensor, torch.Tensor]] = {}
         for p in self.params.values():
             p.requires_grad_(True)
@@ -224,7 +229,7 @@ class SensorParams:
             return render
         if view not in self._grids:
             xd, yd = _normalised_grid(self.intrinsics[view], *self.size)
-            self._grids[view] = (torch.from_numpy(xd), torch.from_numpy(yd))
+            self._grids[view] = (torch.from_numpy(xd).to(self.device), torch.from_numpy(yd).to(self.device))
         xd, yd = self._grids[view]
         x, y = _undistort(xd, yd, k)
         fx, fy, cx, cy = (float(c) for c in self.intrinsics[view][:4])
@@ -286,7 +291,7 @@ class SensorParams:
             log_gain, offset = lg[order], off[order]
         da = p.get("depth_affine", np.array([1.0, 0.0]))
         vig = p.get("vignetting")
-        k = None if self.distortion is None else self.distortion.numpy()
+        k = None if self.distortion is None else self.distortion.cpu().numpy()
         return SensorModel(
             effects=self.effects,
             frames=np.asarray(self.frames, np.int64)[order],

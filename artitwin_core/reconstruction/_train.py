@@ -9,6 +9,7 @@ never of hidden generator state.
 
 from __future__ import annotations
 
+import functools
 import math
 import time
 from collections.abc import Callable, Sequence
@@ -17,6 +18,7 @@ from dataclasses import dataclass, field
 import numpy as np
 import torch
 
+from artitwin_core import progress
 from artitwin_core.capture import Capture
 from artitwin_core.gaussians import LABEL_BACKGROUND, GaussianParams, rasterize
 from artitwin_core.geometry import invert_se3
@@ -31,11 +33,12 @@ _ADAM_EPS = 1e-15  # as the 3DGS reference code
 
 @dataclass
 class TrainViews:
-    """The training views as tensors, with sensor depth resampled onto the RGB pixel grid.
+    """The training views as tensors on one device, with sensor depth resampled onto the RGB grid.
 
     Attributes:
         frames: ``[V]`` capture frame indices of the views.
-        rgb: ``[V, H, W, 3]`` float32 targets in [0, 1].
+        rgb: ``[V, H, W, 3]`` uint8 targets as recorded (sRGB); :meth:`target` gives one view in
+            [0, 1]. Held as bytes: a quarter of the memory of float32, converted on the device per step.
         depth: ``[V, H, W]`` float32 sensor depth at each RGB pixel (nearest depth pixel), metres;
             0 where invalid.
         depth_weight: ``[V, H, W]`` float32 confidence weight (0 = no valid measurement).
@@ -56,6 +59,14 @@ class TrainViews:
     def size(self) -> tuple[int, int]:
         """``(width, height)`` pixels."""
         return int(self.rgb.shape[2]), int(self.rgb.shape[1])
+
+    @property
+    def device(self) -> torch.device:
+        return self.rgb.device
+
+    def target(self, v: int) -> torch.Tensor:
+        """``[H, W, 3]`` float32 RGB of view ``v`` in [0, 1], on the views' device."""
+        return self.rgb[v].to(torch.float32) / 255.0
 
 
 def depth_on_rgb_grid(capture: Capture, t: int, min_confidence: int = 1) -> tuple[np.ndarray, np.ndarray]:
@@ -84,17 +95,30 @@ def depth_on_rgb_grid(capture: Capture, t: int, min_confidence: int = 1) -> tupl
     return np.where(weight > 0, d, 0.0).astype(np.float32), weight.astype(np.float32)
 
 
-def make_views(capture: Capture, world_from_camera: np.ndarray, frames: Sequence[int], min_confidence: int = 1) -> TrainViews:
-    """Tensors of ``frames`` for training or evaluation, with the given ``[T, 4, 4]`` poses."""
+def make_views(
+    capture: Capture,
+    world_from_camera: np.ndarray,
+    frames: Sequence[int],
+    min_confidence: int = 1,
+    device: torch.device | str | None = None,
+) -> TrainViews:
+    """Tensors of ``frames`` on ``device`` (default CPU) for training or evaluation, with the given
+    ``[T, 4, 4]`` poses. Each array is copied to the device once, here."""
     frames = [int(f) for f in frames]
-    depth, weight = zip(*[depth_on_rgb_grid(capture, t, min_confidence) for t in frames], strict=True)
-    cams = np.stack([invert_se3(world_from_camera[t]) for t in frames])
+    dev = torch.device(device or "cpu")
+    h, w = capture.rgb.shape[1:3]
+    depth = torch.empty((len(frames), h, w), dtype=torch.float32, device=dev)
+    weight = torch.empty((len(frames), h, w), dtype=torch.float32, device=dev)
+    for i, t in enumerate(frames):  # one frame at a time: the full-resolution float maps never pile up on the host
+        d, c = depth_on_rgb_grid(capture, t, min_confidence)
+        depth[i], weight[i] = torch.from_numpy(d), torch.from_numpy(c)
+    cams = np.stack([invert_se3(world_from_camera[t]) for t in frames]) if frames else np.zeros((0, 4, 4))
     return TrainViews(
         frames=frames,
-        rgb=torch.from_numpy(capture.rgb[frames].astype(np.float32) / 255.0),
-        depth=torch.from_numpy(np.stack(depth)),
-        depth_weight=torch.from_numpy(np.stack(weight)),
-        cam_from_world=torch.from_numpy(cams.astype(np.float32)),
+        rgb=torch.from_numpy(np.ascontiguousarray(capture.rgb[frames], np.uint8)).to(dev),
+        depth=depth,
+        depth_weight=weight,
+        cam_from_world=torch.from_numpy(cams.astype(np.float32)).to(dev),
         intrinsics=np.asarray(capture.rgb_intrinsics[frames], np.float64),
         distortion=None if capture.distortion is None else np.asarray(capture.distortion, np.float64),
     )
@@ -138,17 +162,19 @@ class TrainState:
     sensor: SensorParams | None = None
 
     @classmethod
-    def from_params(cls, params: GaussianParams, extent: float) -> TrainState:
+    def from_params(cls, params: GaussianParams, extent: float, device: torch.device | str | None = None) -> TrainState:
+        """A fresh state (step 0, zero moments) of ``params`` with every tensor on ``device`` (default CPU)."""
+        dev = torch.device(device or "cpu")
         sh = torch.from_numpy(np.ascontiguousarray(params.sh, np.float32))
         p = {
             "means": torch.from_numpy(np.ascontiguousarray(params.means, np.float32)),
             "quats_wxyz": torch.from_numpy(np.ascontiguousarray(params.quats_wxyz, np.float32)),
             "log_scales": torch.from_numpy(np.ascontiguousarray(params.log_scales, np.float32)),
             "opacity_logits": torch.from_numpy(np.ascontiguousarray(params.opacity_logits, np.float32)),
-            "sh_dc": sh[:, :1].clone(),
-            "sh_rest": sh[:, 1:].clone(),
+            "sh_dc": sh[:, :1],
+            "sh_rest": sh[:, 1:],
         }
-        p = {k: v.clone().requires_grad_(True) for k, v in p.items()}
+        p = {k: v.to(dev, copy=True).contiguous().requires_grad_(True) for k, v in p.items()}
         n = params.num_gaussians
         return cls(
             params=p,
@@ -156,14 +182,18 @@ class TrainState:
             exp_avg_sq={k: torch.zeros_like(v) for k, v in p.items()},
             step=0,
             extent=float(extent),
-            grad_accum=torch.zeros(n),
-            grad_count=torch.zeros(n),
-            max_radii=torch.zeros(n),
+            grad_accum=torch.zeros(n, device=dev),
+            grad_count=torch.zeros(n, device=dev),
+            max_radii=torch.zeros(n, device=dev),
         )
 
     @property
     def num_gaussians(self) -> int:
         return int(self.params["means"].shape[0])
+
+    @property
+    def device(self) -> torch.device:
+        return self.params["means"].device
 
     def sensor_model(self) -> SensorModel | None:
         """The learned sensor model (None when no sensor effect was trained)."""
@@ -210,9 +240,19 @@ def render_params(
     return rasterize(
         params["means"], params["quats_wxyz"], params["log_scales"], params["opacity_logits"], sh,
         cam_from_world, tuple(float(x) for x in intrinsics), width, height,
-        sh_degree=sh_degree, background=torch.tensor(config.background, dtype=torch.float32),
+        sh_degree=sh_degree, background=background_tensor(config.background, params["means"].device),
         backend=config.backend,
     )  # fmt: skip
+
+
+@functools.lru_cache(maxsize=16)
+def _background(rgb: tuple[float, float, float], device: torch.device) -> torch.Tensor:
+    return torch.tensor(rgb, dtype=torch.float32, device=device)
+
+
+def background_tensor(rgb, device: torch.device) -> torch.Tensor:
+    """``[3]`` float32 background colour on ``device``, made once per colour and device (not per step)."""
+    return _background(tuple(float(c) for c in rgb), torch.device(device))
 
 
 def view_index(step: int, num_views: int, seed: int) -> int:
@@ -239,10 +279,11 @@ def train_step(state: TrainState, views: TrainViews, config: TrainConfig) -> flo
     )  # fmt: skip
     out.retain_means2d_grad()
     if state.sensor is None and (config.sensor_effects or _records_distortion(views)):
-        state.sensor = SensorParams(config.sensor_effects, views.frames, views.intrinsics, w, h, views.distortion)
+        state.sensor = SensorParams(config.sensor_effects, views.frames, views.intrinsics, w, h, views.distortion,
+                                    device=state.device)
     sensor = state.sensor
     rgb = sensor.rgb(out.rgb, v) if sensor else out.rgb
-    loss = photometric_loss(rgb, views.rgb[v], config.lambda_dssim)
+    loss = photometric_loss(rgb, views.target(v), config.lambda_dssim)
     if config.depth_weight > 0:
         depth = out.expected_depth()
         depth = sensor.depth(depth) if sensor else depth
@@ -269,14 +310,16 @@ def train_step(state: TrainState, views: TrainViews, config: TrainConfig) -> flo
 
 def _accumulate_stats(state: TrainState, out, width: int, height: int) -> None:
     g = out.means2d_grad
-    vis = out.radii > 0
-    if g is None or not bool(vis.any()):
+    if g is None:
         return
+    # Masked arithmetic rather than indexing by the visible set: no host sync per step on a GPU.
+    vis = out.radii > 0
     # 3DGS measures the gradient w.r.t. NDC coordinates: d(px)/d(ndc) = (W/2, H/2).
-    gn = torch.linalg.norm(g.detach().float() * torch.tensor([width / 2.0, height / 2.0]), dim=-1)
-    state.grad_accum[vis] += gn[vis]
-    state.grad_count[vis] += 1
-    state.max_radii[vis] = torch.maximum(state.max_radii[vis], out.radii.detach().float()[vis])
+    g = g.detach().float()
+    gn = torch.linalg.norm(torch.stack([g[:, 0] * (width / 2.0), g[:, 1] * (height / 2.0)], dim=-1), dim=-1)
+    state.grad_accum += torch.where(vis, gn, 0.0)
+    state.grad_count += vis.to(state.grad_count.dtype)
+    state.max_radii.copy_(torch.where(vis, torch.maximum(state.max_radii, out.radii.detach().float()), state.max_radii))
 
 
 def _adam_update(state: TrainState, config: TrainConfig) -> None:
@@ -312,10 +355,10 @@ def _replace(state: TrainState, keep: torch.Tensor, new: dict[str, torch.Tensor]
             v = torch.cat([v, torch.zeros_like(new[name])])
         state.params[name] = p.contiguous().requires_grad_(True)
         state.exp_avg[name], state.exp_avg_sq[name] = m.contiguous(), v.contiguous()
-    n = state.num_gaussians
-    state.grad_accum = torch.zeros(n)
-    state.grad_count = torch.zeros(n)
-    state.max_radii = torch.zeros(n)
+    n, dev = state.num_gaussians, state.device
+    state.grad_accum = torch.zeros(n, device=dev)
+    state.grad_count = torch.zeros(n, device=dev)
+    state.max_radii = torch.zeros(n, device=dev)
 
 
 def _quat_to_rotmat(q: torch.Tensor) -> torch.Tensor:
@@ -346,12 +389,13 @@ def densify_and_prune(state: TrainState, config: TrainConfig) -> dict[str, int]:
         new = {k: v[clone] for k, v in p.items()}
         # Split: two samples from each large Gaussian, 1.6x smaller (3DGS).
         idx = torch.nonzero(split).squeeze(1)
-        gen = torch.Generator().manual_seed(int(config.seed) * 1_000_003 + state.step)
+        dev = state.device
+        gen = torch.Generator(device=dev).manual_seed(int(config.seed) * 1_000_003 + state.step)
         if len(idx):
             s = p["log_scales"][idx].exp()
             rot = _quat_to_rotmat(p["quats_wxyz"][idx])
             for _ in range(2):
-                offs = torch.randn(s.shape, generator=gen) * s
+                offs = torch.randn(s.shape, generator=gen, device=dev) * s
                 new["means"] = torch.cat([new["means"], p["means"][idx] + (rot @ offs[:, :, None])[:, :, 0]])
                 new["log_scales"] = torch.cat([new["log_scales"], torch.log(s / 1.6)])
                 for k in ("quats_wxyz", "opacity_logits", "sh_dc", "sh_rest"):
@@ -400,10 +444,13 @@ def train(
     """
     end = config.steps if until is None else min(until, config.steps)
     start = time.perf_counter()
-    while state.step < end:
-        train_step(state, views, config)
-        if callback is not None:
-            callback(state)
-        if time_budget_s is not None and time.perf_counter() - start > time_budget_s:
-            break
+    with progress("3DGS training", total=end) as report:
+        report.set(state.step)
+        while state.step < end:
+            train_step(state, views, config)
+            report.advance(info=f"{state.num_gaussians} Gaussians")
+            if callback is not None:
+                callback(state)
+            if time_budget_s is not None and time.perf_counter() - start > time_budget_s:
+                break
     return state

@@ -6,6 +6,7 @@ from __future__ import annotations
 
 from dataclasses import replace
 
+import cv2
 import numpy as np
 import pytest
 import zarr
@@ -129,6 +130,40 @@ def test_predict_views_renders_every_frame_at_the_capture_sizes():
     assert report.findings and report.html
 
 
+def test_predictions_of_some_frames_at_a_lower_resolution_are_diagnosed():
+    """PredictViewsConfig.max_frames and max_side (the CPU preset's): runs of consecutive frames at a
+    lower RGB resolution; the diagnosis compares them with those frames of the capture, downscaled."""
+    from schemas import CameraPoses, GaussianCheckpoint
+    from schemas._diagnose import PredictViewsConfig
+    from tasks.diagnose import predict_views, prediction_frames
+
+    assert prediction_frames(10, PredictViewsConfig()) == list(range(10))
+    assert prediction_frames(40, PredictViewsConfig(max_frames=12, run_frames=4)) == [
+        0, 1, 2, 3, 18, 19, 20, 21, 36, 37, 38, 39]
+    capture, prediction, joints, traj = _artifacts(EFFECTS)
+    n = 200
+    rng = np.random.default_rng(0)
+    centre = capture.world_from_camera[0, :3, 3] + 1.5 * capture.world_from_camera[0, :3, 2]
+    ckpt = GaussianCheckpoint(
+        means=(centre + 0.3 * rng.standard_normal((n, 3))).astype(np.float32),
+        quats_wxyz=np.tile(np.float32([1, 0, 0, 0]), (n, 1)), log_scales=np.full((n, 3), np.log(0.05), np.float32),
+        opacity_logits=np.full(n, 3.0, np.float32), sh=(0.3 * rng.standard_normal((n, 1, 3))).astype(np.float32),
+        labels=np.zeros(n, np.int32))
+    poses = CameraPoses(world_from_camera=capture.world_from_camera, frame_ids=capture.frame_ids, frame="canonical")
+    h, w = capture.rgb.shape[1:3]
+    pred = predict_views(capture, poses, ckpt, PredictViewsConfig(backend="cpu", max_side=w // 2, max_frames=6, run_frames=3))
+    assert pred.rgb.shape[0] == 6 and pred.rgb.shape[1:3] == (h // 2, w // 2)
+    assert pred.depth.shape[1:] == capture.depth.shape[1:]
+    np.testing.assert_array_equal(pred.frame_ids, capture.frame_ids[prediction_frames(len(capture.frame_ids),
+                                  PredictViewsConfig(max_frames=6, run_frames=3))])
+    # The ground truth, predicted for those frames at half resolution, still shows the exposure wander.
+    keep = np.searchsorted(prediction.frame_ids, pred.frame_ids)
+    small = np.stack([cv2.resize(f, (w // 2, h // 2), interpolation=cv2.INTER_AREA) for f in prediction.rgb[keep]])
+    truth = ViewPrediction(rgb=small, depth=prediction.depth[keep], frame_ids=pred.frame_ids)
+    report = diagnose_twin(capture, truth, joints, traj, DiagnoseConfig())
+    assert f"{STATIC_SCOPE}/exposure_white_balance" in report.enabled
+
+
 def test_states_on_the_rgb_clock_are_compared_on_the_tracks_clock():
     """With the effect time_offset modelled, joint_states writes the states on the RGB clock; the
     tracks were lifted with the later depth, so the joint-tracks residual moves them back."""
@@ -175,11 +210,15 @@ def test_predict_dynamic_renders_rgb_and_depth_each_on_its_clock(monkeypatch):
         opacity_logits=np.zeros(1, np.float32), sh=np.zeros((1, 1, 3), np.float32), labels=np.zeros(1, np.int32))
     calls = []
 
-    def fake_render(params, joints, q, pose, intrinsics, w, h, **_):
-        calls.append((w, np.asarray(q, float), np.asarray(pose)))
-        return np.zeros((h, w, 3)), np.ones((h, w)), np.ones((h, w))
+    class FakeTwin:
+        def __init__(self, params, joints, **_):
+            pass
 
-    monkeypatch.setattr(td, "render_twin", fake_render)
+        def render(self, q, pose, intrinsics, w, h):
+            calls.append((w, np.asarray(q, float), np.asarray(pose)))
+            return np.zeros((h, w, 3)), np.ones((h, w)), np.ones((h, w))
+
+    monkeypatch.setattr(td, "TwinRenderer", FakeTwin)
     masks = MaskSequenceArtifact(part=np.zeros(dyn.rgb.shape[:3], np.uint8), hand=np.zeros(dyn.rgb.shape[:3], bool),
                                  score=np.ones(t_frames, np.float32))
     reg = Registration(canonical_from_session=np.eye(4), residual_m=0.0, inlier_fraction=1.0, method="test")
@@ -196,3 +235,18 @@ def test_predict_dynamic_renders_rgb_and_depth_each_on_its_clock(monkeypatch):
         np.testing.assert_allclose(depth_calls[t][1], [depth_q[t]])
     # The camera moves between frames, so the two clocks' poses differ.
     assert max(np.linalg.norm(rgb_poses[t][:3, 3] - dyn.world_from_camera[t][:3, 3]) for t in range(t_frames)) > 1e-3
+
+    # At half the RGB resolution, on some frames: the hand leaves the coverage at that size (any pixel
+    # of it makes a coarse pixel the hand's) and the depth wherever it spans a full-resolution hand pixel.
+    h, w = dyn.rgb.shape[1:3]
+    _, dh, dw = dyn.depth.shape
+    hand = np.zeros(dyn.rgb.shape[:3], bool)
+    hand[:, 11, 13] = True
+    with_hand = masks.model_copy(update={"hand": hand})
+    cfg = PredictViewsConfig(backend="cpu", max_side=w // 2, max_frames=4, run_frames=2)
+    pred = td.predict_dynamic(ckpt, dyn, reg, with_hand, stored, cfg)
+    assert pred.rgb.shape == (4, h // 2, w // 2, 3) and pred.depth.shape == (4, dh, dw)
+    np.testing.assert_array_equal(pred.frame_ids, dyn.frame_ids[td.prediction_frames(t_frames, cfg)])
+    assert (~pred.coverage).sum(axis=(1, 2)).tolist() == [1] * 4 and not pred.coverage[:, 5, 6].any()
+    assert np.isnan(pred.depth).sum(axis=(1, 2)).tolist() == [1] * 4
+    assert np.isnan(pred.depth[:, 11 * dh // h, 13 * dw // w]).all()

@@ -114,3 +114,49 @@ def test_plan_knows_every_key_before_running_and_remembers_failures(tmp_path, fo
     assert plan.submit("toy_measure", ToyConfig(), {"recording": raw}, "").status == "cached"
     assert store.failure(a.key) is None
     assert f"failures/{a.key}.json" in store.gc(grace_s=0)
+
+
+def test_parallel_executor_gives_the_inline_results_and_skips_after_a_failure(tmp_path, folder):
+    """ParallelExecutor (run_scene_inline(workers=2), bench_end_to_end --workers) runs a stage once
+    its inputs are done; a failed input skips what reads it, as InlineExecutor does."""
+    from flows import ParallelExecutor
+    from tests.flows._toy import FAILURES
+
+    store = ArtifactStore(tmp_path / "store")
+    raw = raw_input(folder, sorted(folder.iterdir()))
+    ex = ParallelExecutor(store, workers=2)
+    try:
+        a = ex.submit("toy_measure", ToyConfig(), {"recording": raw}, "")
+        b = ex.submit("toy_double", ToyConfig(), {"report": a}, "b")
+        c = ex.submit("toy_double", ToyConfig(scale=3.0), {"report": a}, "c")
+        runs = [ex.result(h) for h in (a, b, c)]
+    finally:
+        ex.shutdown()
+    assert [r.status for r in runs] == ["computed"] * 3
+    assert [store.get(r.key, StageReport).metrics["bytes_count"] for r in runs[1:]] == [300.0, 900.0]
+    inline_a, inline_b = _chain(ArtifactStore(tmp_path / "other"), folder)
+    assert (inline_a.key, inline_b.key) == (runs[0].key, runs[1].key)
+
+    FAILURES["toy_measure"] = 1
+    ex = ParallelExecutor(ArtifactStore(tmp_path / "third"), workers=2)
+    try:
+        a = ex.submit("toy_measure", ToyConfig(), {"recording": raw}, "")
+        b = ex.submit("toy_double", ToyConfig(), {"report": a}, "b")
+        failed, skipped = ex.result(a), ex.result(b)
+    finally:
+        ex.shutdown()
+    assert (failed.status, skipped.status) == ("failed", "skipped")
+
+
+def test_each_stage_run_is_reported_as_progress_lines(tmp_path, folder):
+    """Output that is not a terminal (logs, CI, workers) gets a line when a stage starts and when it ends."""
+    import io
+
+    from flows._progress import LineSink
+
+    stream = io.StringIO()
+    with LineSink(stream):
+        _chain(ArtifactStore(tmp_path / "store"), folder)
+    lines = stream.getvalue().splitlines()
+    assert [line.split(" ", 1)[1].split(" in ")[0] for line in lines] == [
+        "toy_measure ...", "toy_measure done", "toy_double ...", "toy_double done"]

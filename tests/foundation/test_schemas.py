@@ -81,3 +81,20 @@ def test_reading_a_different_kind_or_version_is_a_clear_error():
 def test_configs_reject_unknown_fields():
     with pytest.raises(ValueError, match="extra"):
         schemas.PipelineConfig.model_validate({"ingest": {"strid": 2}})
+
+
+def test_presets_size_the_work_for_the_hardware():
+    from schemas import PipelineConfig
+
+    assert PipelineConfig.preset("full") == PipelineConfig()
+    cpu = PipelineConfig.preset("default")
+    assert (cpu.ingest.rgb_max_side, cpu.ingest.keyframes_max) == (640, 100)
+    assert (cpu.reconstruct.train_max_side, cpu.articulate.train_max_side) == (384, 256)
+    assert cpu.refine_poses.max_features is None and cpu.refine_poses.loop_closure_pairs > 0
+    assert cpu.predict_views.max_frames == 16
+    gpu = PipelineConfig.preset("default", gpu=True)
+    assert gpu.ingest.rgb_max_side is None and gpu.reconstruct.train_max_side is None
+    assert gpu.articulate.train_max_side is None and gpu.predict_views.max_frames is None
+    assert gpu.reconstruct.max_gaussians == 1_000_000 and gpu.reconstruct.steps == 7000
+    with pytest.raises(ValueError, match="known: default, quick, full"):
+        PipelineConfig.preset("fast")

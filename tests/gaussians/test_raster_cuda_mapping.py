@@ -19,28 +19,8 @@ import torch
 from artitwin_core.gaussians._raster_cuda import rasterize_cuda
 from artitwin_core.gaussians._raster_reference import rasterize_reference
 
+from ._fake_gsplat import CALLS, _fake_rasterization
 from ._scenes import HEIGHT, INTRINSICS, WIDTH, random_camera, random_scene
-
-CALLS: list[dict] = []
-
-
-def _fake_rasterization(means, quats, scales, opacities, colors, viewmats, Ks, width, height, **kw):
-    CALLS.append(kw)
-    assert kw["render_mode"] == "RGB+D" and kw["packed"] is False and kw["eps2d"] == 0.3
-    k = Ks[0]
-    intr = (float(k[0, 0]), float(k[1, 1]), float(k[0, 2]), float(k[1, 2]))
-    logits = torch.log(opacities / (1 - opacities))
-    rgb, depth, alpha, means2d, depths, valid = rasterize_reference(
-        means, quats, torch.log(scales), logits, colors, viewmats[0], intr, width, height,
-        kw["sh_degree"], kw["backgrounds"][0], kw["near_plane"],
-    )  # fmt: skip
-    # Like gsplat, the image is composited from the very means2d tensor handed back in meta.
-    m2d = means2d[None]
-    shift = (m2d - m2d.detach()).sum() * 0.0
-    render = torch.cat([rgb, depth[..., None]], -1)[None] + shift
-    radii = torch.where(valid, 3, 0)[None, :, None].expand(1, -1, 2).to(torch.int32)
-    meta = {"means2d": m2d, "radii": radii, "depths": depths[None]}
-    return render, alpha[None, ..., None], meta
 
 
 def test_gsplat_arguments_are_mapped(monkeypatch) -> None:
