@@ -243,6 +243,11 @@ class SettlePartsConfig(StageConfig):
         default=0.01, ge=0,
         description="... and at least this much closer (metres). An unconfirmed joint counts as no joint of its own.",
     )
+    min_range_m: float = Field(
+        default=0.02, ge=0,
+        description="A fitted slide whose states span less than this (metres) is no motion of its own (tracks drifting by millimetres).",
+    )
+    min_range_deg: float = Field(default=3.0, ge=0, description="... and a fitted turn spanning less than this (degrees).")
     same_axis_deg: float = Field(default=10.0, gt=0, description="Two fitted joints are one when their axes are this close, degrees...")
     same_line_m: float = Field(default=0.05, gt=0, description="... their lines (rotations) pass this close at the candidate, metres...")
     same_state_frac: float = Field(

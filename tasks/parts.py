@@ -33,7 +33,7 @@ def _core_config(config: SettlePartsConfig) -> SettleConfig:
     return SettleConfig(**config.model_dump())
 
 
-@stage(name="settle_parts", version=2, config=SettlePartsConfig, output=JointSet)
+@stage(name="settle_parts", version=3, config=SettlePartsConfig, output=JointSet)
 def settle_candidate_parts(
     joints: JointSet,
     trajectories: TrajectoriesArtifact,

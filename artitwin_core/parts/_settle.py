@@ -58,6 +58,10 @@ class SettleConfig:
             interior and edge, seen once it is open, sit a few centimetres off its front).
             Unconfirmed, it counts as no joint of its own: a planar patch "turning" in its own
             plane agrees with its depth held still as well as moved.
+        min_range_m, min_range_deg: a fitted joint whose states span less than this (metres
+            for a slide, degrees for a turn) is no motion of its own: tracks on a foot, an
+            edge or a shadow drift by millimetres, and a part opened that little cannot be told
+            from them.
         same_axis_deg, same_line_m: two fitted joints are the same joint when their axes are this
             close (degrees) and, for rotations, their lines pass this close at the candidate (metres).
         same_state_frac, same_state_floor: ... and their states agree within this fraction of the
@@ -74,6 +78,8 @@ class SettleConfig:
     min_discrimination_m: float = 0.03
     confirm_min_ratio: float = 1.5
     confirm_min_margin_m: float = 0.01
+    min_range_m: float = 0.02
+    min_range_deg: float = 3.0
     same_axis_deg: float = 10.0
     same_line_m: float = 0.05
     same_state_frac: float = 0.15
@@ -158,6 +164,7 @@ def settle_parts(
     }
     decided: dict[int, PartFate] = {}
     kept: list[int] = []
+    unconfirmed: dict[int, str] = {}  # a joint that is no motion of its own, and why
     # A joint of its own, and depth enough: kept, unless it is the same joint as a kept neighbour's.
     for lab, c in cands.items():
         if c.depth_px < cfg.min_depth_points:
@@ -165,6 +172,12 @@ def settle_parts(
                                  f"{c.depth_frames} frames (at least {cfg.min_depth_points} are needed to build its mesh)")
             continue
         if c.joint is None or c.joint.joint_type == "fixed":
+            continue
+        span = _span(c.joint)
+        if span < (cfg.min_range_m if c.joint.joint_type == "prismatic" else np.radians(cfg.min_range_deg)):
+            unit = (f"{1e3 * span:.0f} mm (min_range_m {1e3 * cfg.min_range_m:.0f} mm)" if c.joint.joint_type == "prismatic"
+                    else f"{np.degrees(span):.1f} deg (min_range_deg {cfg.min_range_deg:g})")
+            unconfirmed[lab] = f"the {c.joint.joint_type} joint fitted to its {c.tracks} tracks moves it by only {unit}"
             continue
         twin = next((k for k in kept if _adjacent(part, k, lab, cfg) and _same_joint(cands[k], c, cfg)), None)
         if twin is None:
@@ -178,7 +191,6 @@ def settle_parts(
     # A joint its own depth does not confirm (its points, moved back by it, agree with its closed
     # surface no better than held still) is no motion of its own: a planar patch "turning" in its
     # plane, a fit to drifting tracks. It is treated below as a candidate with no joint.
-    unconfirmed: dict[int, str] = {}
     for lab in list(kept):
         c = cands[lab]
         fit = _misfits(c, c.joint, cfg)
@@ -316,6 +328,13 @@ def _explain_or_drop(c: _Candidate, why: str, neighbours: list[_Candidate], cfg:
     if still <= cfg.merge_max_misfit_m and cfg.merge_min_ratio * still <= moving:
         return _fate(c, "dropped", f"{why}; it did not move while its neighbour did ({mm})")
     return _fate(c, "dropped", f"{why}; no kept part's motion explains its depth ({mm})")
+
+
+def _span(joint: Joint) -> float:
+    """The range of a joint's states over the recording (metres or radians)."""
+    q = np.asarray(joint.q, np.float64)
+    q = q[np.isfinite(q)]
+    return float(q.max() - q.min()) if q.size else 0.0
 
 
 def _explains(fit: tuple[float, float], cfg: SettleConfig) -> bool:

@@ -140,3 +140,18 @@ def test_a_piece_with_its_own_joint_merges_and_an_unconfirmed_joint_drops(drawer
     assert (fates[1].fate, fates[1].into, fates[1].part) == ("merged", 0, 0), fates[1]
     assert "one part, not two" in fates[1].reason
     assert fates[2].fate == "dropped" and "does not confirm" in fates[2].reason, fates[2]
+
+
+def test_a_joint_that_hardly_moves_is_no_motion_of_its_own(drawer):
+    """Tracks on a foot or an edge drift by millimetres and BIC may still pick a slide: a fitted
+    joint spanning 5 mm is no motion of its own (min_range_m 2 cm), and the candidate is dropped."""
+    scene = drawer
+    masks = _candidates(scene)
+    truth = scene.truth
+    slide = truth.joints[0]
+    creep = replace(slide, q=0.005 * np.asarray(slide.q) / float(np.max(np.abs(slide.q))))
+    decision = settle_parts(scene.dynamic, masks, truth.canonical_from_dynamic_session,
+                            {1: slide, 3: creep}, tracks={1: 200, 3: 60})
+    fates = {f.candidate: f for f in decision.fates}
+    assert decision.kept_labels == (1,), decision.fates
+    assert fates[2].fate == "dropped" and "moves it by only 5 mm" in fates[2].reason, fates[2]
