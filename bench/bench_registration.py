@@ -19,7 +19,8 @@ or do not overlap at all, registration alone: the static sweep cut to its first 
 frames (``partial``), the static sweep's two halves (``same-session``: the truth is the
 identity), renders of the room's front wall and front-left corner, which the static sweep never
 saw, and another scene's dynamic recording scaled 1.3x, a bigger room (``no-overlap``: a refusal
-is the right answer).
+is the right answer). ``colour_agreement`` is the texture test's correlation at the refined placement
+(for a refusal before the fine stages, the coarse best's; see ``RegistrationConfig.min_colour_agreement``).
 ``true_overlap`` is the share of the dynamic points within 2 cm of a static one at the truth.
 
 Run: ``python bench/bench_registration.py [--scenes door drawer ...] [--overlap-scenes door ...]
@@ -210,11 +211,13 @@ def run_overlap_case(case: str, static: Capture, dynamic: Capture, truth, size_m
     except RegistrationError as err:
         best = err.hypotheses[0]
         row.update(refused=True, failed="; ".join(f.split(" (")[0][:60] for f in err.failed), support=best.support,
-                   est_overlap=best.overlap, inlier_ratio=best.inlier_ratio, register_s=time.perf_counter() - t0)
+                   est_overlap=best.overlap, inlier_ratio=best.inlier_ratio, colour_agreement=best.colour_agreement,
+                   colour_contrast=best.colour_contrast, register_s=time.perf_counter() - t0)
         return row
     final, verdict = reg.diagnostics["final"], reg.diagnostics["verdict"]
     row.update(refused=False, chosen=final["name"], support=final["support"], est_overlap=final["overlap"],
                inlier_ratio=final["inlier_ratio"], rival_ratio=verdict["rival_ratio"], tilt_deg=reg.tilt_deg,
+               colour_agreement=final["colour_agreement"], colour_contrast=final["colour_contrast"],
                register_s=time.perf_counter() - t0)
     if truth is not None:
         rot, trans = pose_errors(reg.canonical_from_session, truth)
@@ -257,8 +260,8 @@ def main() -> None:
     if overlap_rows:
         print("\nPartial overlap, one session, no overlap (registration alone; no-overlap rows must be refused):\n")
         print_table(overlap_rows, ["case", "true_overlap", "refused", "rot_err_deg", "furniture_err_m", "furniture_se_m",
-                                   "tilt_deg", "support", "est_overlap", "inlier_ratio", "rival_ratio", "register_s",
-                                   "failed"])
+                                   "tilt_deg", "support", "est_overlap", "inlier_ratio", "rival_ratio", "colour_agreement",
+                                   "colour_contrast", "register_s", "failed"])
     targets = {"rot_err_deg": 0.5, "trans_err_m": 0.01, "furniture_err_m": 0.01, "mask_iou_median": 0.85, "hand_as_part": 0.05}
     path = write_results(
         "registration", rows,

@@ -70,7 +70,7 @@ class Registration(Artifact):
     """Rigid transform that puts the dynamic recording into the canonical frame."""
 
     kind = "registration"
-    schema_version = 3
+    schema_version = 4
 
     canonical_from_session: Array("float64", "4 4") = Field(
         description="Maps points from the dynamic recording's session frame to the canonical frame (metres), [4, 4]."
@@ -109,6 +109,16 @@ class Registration(Artifact):
     )
     tilt_deg: float = Field(
         default=0.0, description="Angle between gravity and gravity mapped through canonical_from_session, degrees."
+    )
+    colour_agreement: float = Field(
+        default=float("nan"),
+        description="Correlation (-1 to 1) of the winner's matched dynamic colours with the static surface's, each about "
+        "its surface's mean: about 0 when the shapes match but the surfaces are other ones (a corner onto another "
+        "corner); NaN when there was no texture to compare.",
+    )
+    colour_contrast: float = Field(
+        default=0.0, description="RMS of the static intensity (0-1) about each matched surface's mean: the texture the "
+        "colour agreement was measured on.",
     )
 
 

@@ -33,10 +33,11 @@ from tasks._convert import to_artifact, to_core
 from tasks._stage import stage
 
 
-@stage(name="register", version=5, config=RegisterConfig, output=Registration)
+@stage(name="register", version=6, config=RegisterConfig, output=Registration)
 def register_dynamic(static: CaptureArtifact, dynamic: CaptureArtifact, config: RegisterConfig) -> Registration:
     """``canonical_from_session`` of the dynamic recording: hypotheses from the poses and a yaw sweep
-    about gravity, scored against what the static recording saw, gravity-keeping ICP, coloured ICP.
+    about gravity, scored against what the static recording saw, gravity-keeping ICP, coloured ICP, and
+    a check that the refined placement lays the same texture on the static surfaces.
 
     Raises :class:`artitwin_core.registration.RegistrationError` (an ``InputError``) when no
     hypothesis is convincing, so that part_masks never runs on a wrong placement."""
@@ -61,6 +62,8 @@ def register_dynamic(static: CaptureArtifact, dynamic: CaptureArtifact, config: 
         overlap_inlier_ratio=float(final["inlier_ratio"]),
         weakest_constraint=float(final["constraint"]),
         tilt_deg=float(result.tilt_deg),
+        colour_agreement=float(final["colour_agreement"]),
+        colour_contrast=float(final["colour_contrast"]),
     )
 
 

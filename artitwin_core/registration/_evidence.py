@@ -12,6 +12,10 @@ through a static surface also counts against.
 The moved part (and the hand) legitimately sit in space the static recording saw empty, but only
 once the part has moved, so the dynamic frames are scored one by one and the early ones (part
 most likely still closed) weigh more; a wrong placement conflicts in the early frames too.
+
+Geometry cannot tell apart surfaces of the same shape (two corners of a box-shaped room), so
+each hypothesis also gets the agreement of the texture on its matched surfaces
+(:mod:`._photometric`).
 """
 
 from __future__ import annotations
@@ -23,6 +27,7 @@ from scipy import ndimage
 
 from artitwin_core.capture import Capture
 from artitwin_core.registration._gravity_icp import PlaneTarget
+from artitwin_core.registration._photometric import within_surface_correlation
 from artitwin_core.registration._types import HypothesisScore
 
 
@@ -71,12 +76,15 @@ class Evidence:
         conflict: points in space the other recording saw through (free space).
         total: points tested.
         agree_mask: ``[N]`` bool, which points agree.
+        matched: ``[N]`` index of each point's nearest surface point in the target (meaningful
+            where ``agree_mask``).
     """
 
     agree: int
     conflict: int
     total: int
     agree_mask: np.ndarray
+    matched: np.ndarray
 
     @property
     def overlap(self) -> float:
@@ -152,7 +160,7 @@ def evidence(
     plane = np.einsum("ij,ij->i", points[ok] - target.points[idx[ok]], target.normals[idx[ok]])
     agree[np.nonzero(ok)[0][np.abs(plane) < inlier_m]] = True
     conflict = ~agree & (free_space_hits(points, views, margin_m) > 0)
-    return Evidence(int(agree.sum()), int(conflict.sum()), len(points), agree)
+    return Evidence(int(agree.sum()), int(conflict.sum()), len(points), agree, idx)
 
 
 def weakest_constraint(points: np.ndarray, normals: np.ndarray, up: np.ndarray) -> tuple[float, np.ndarray]:
@@ -188,6 +196,11 @@ class ScoringData:
             valid pixel of ``dynamic_views``.
         dynamic_views: those frames' depth maps.
         frame_weights: ``[len(dynamic_points)]`` how much each of those frames counts.
+        static_luminance: ``[len(static_surface.points)]`` the static surface's intensity
+            (``_photometric.luminance`` of its colours); None skips the texture test.
+        static_groups: ``[len(static_surface.points)]`` the planar surface each static surface
+            point lies on (``_photometric.surface_groups``).
+        dynamic_luminance: per scored dynamic frame, the intensity ``[M_i]`` of its points.
     """
 
     static_surface: PlaneTarget
@@ -196,6 +209,9 @@ class ScoringData:
     dynamic_points: tuple[np.ndarray, ...]
     dynamic_views: DepthViews
     frame_weights: np.ndarray
+    static_luminance: np.ndarray | None = None
+    static_groups: np.ndarray | None = None
+    dynamic_luminance: tuple[np.ndarray, ...] | None = None
 
 
 def score_hypothesis(
@@ -209,7 +225,11 @@ def score_hypothesis(
     floor onto static ones while the rest of it lands where the static recording never looked
     (its rays then cross the static furniture). The hypothesis' support is the weighted mean;
     its inlier ratio the weighted pooled share of agreeing points among those where the static
-    recording looked; its overlap the unweighted share of dynamic points where it looked.
+    recording looked; its overlap the unweighted share of dynamic points where it looked. Its
+    colour agreement is the mean over frames of the within-surface correlation of the agreeing
+    points' intensities with the static ones (``_photometric.within_surface_correlation``),
+    weighted by frame weight times agreeing points, and its colour contrast the same mean of the
+    static texture's RMS; NaN and 0 where no frame has enough texture.
     """
     w = np.asarray(data.frame_weights, dtype=np.float64)
     inverse = np.linalg.inv(transform)
@@ -218,6 +238,7 @@ def score_hypothesis(
     w_agree = w_seen = 0.0
     frame_support = np.zeros(len(data.dynamic_points))
     agreed = []
+    colour = []  # (weight, r, contrast) per frame with enough texture
     for i, pts in enumerate(data.dynamic_points):
         moved = pts @ transform[:3, :3].T + transform[:3, 3]
         ev = evidence(moved, data.static_surface, data.static_views, inlier_m=inlier_m, margin_m=margin_m)
@@ -227,9 +248,16 @@ def score_hypothesis(
         w_agree += w[i] * ev.agree
         w_seen += w[i] * (ev.agree + ev.conflict)
         agreed.append(moved[ev.agree_mask])
+        if data.static_luminance is not None and data.dynamic_luminance is not None:
+            match = ev.matched[ev.agree_mask]
+            rc = within_surface_correlation(data.dynamic_luminance[i][ev.agree_mask], data.static_luminance[match],
+                                            data.static_groups[match])
+            if rc is not None:
+                colour.append((w[i] * ev.agree, *rc))
     points = np.concatenate(agreed) if agreed else np.zeros((0, 3))
     _, idx = data.static_surface.tree.query(points)
     constraint, _ = weakest_constraint(points, data.static_surface.normals[idx], up)
+    cw, cr, cc = np.array(colour).T if colour else (np.zeros(1), np.full(1, np.nan), np.zeros(1))
     return HypothesisScore(
         name=name,
         canonical_from_session=np.asarray(transform, dtype=np.float64),
@@ -237,4 +265,6 @@ def score_hypothesis(
         overlap=(agree + conflict) / max(total, 1),
         inlier_ratio=w_agree / max(w_seen, 1e-12),
         constraint=constraint,
+        colour_agreement=float(np.sum(cw * cr) / np.sum(cw)) if np.sum(cw) > 0 else float("nan"),
+        colour_contrast=float(np.sum(cw * cc) / np.sum(cw)) if np.sum(cw) > 0 else 0.0,
     )

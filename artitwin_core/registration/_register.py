@@ -11,6 +11,9 @@ degree; a coloured ICP finishes, so texture helps where the geometry slides (a l
 no hypothesis is convincing (too little overlap, space seen empty, a runner-up nearly as good,
 or matches that leave a direction free) :class:`RegistrationError` says so with the numbers,
 rather than handing the later stages a placement that turns the whole room into moving parts.
+The refined placement must also carry the same texture as the static surfaces it lands on
+(:mod:`._photometric`): a corner of the room that the static sweep never saw fits another
+corner's walls and floor perfectly, and only the texture tells them apart.
 """
 
 from __future__ import annotations
@@ -32,6 +35,7 @@ from artitwin_core.registration._evidence import (
 )
 from artitwin_core.registration._global import gravity_basis, pose_hypotheses, yaw_candidates
 from artitwin_core.registration._gravity_icp import PlaneTarget, gravity_icp, match_tilt, tilt_of, tilt_vector
+from artitwin_core.registration._photometric import luminance, surface_groups
 from artitwin_core.registration._types import (
     HypothesisScore,
     RegistrationConfig,
@@ -205,14 +209,20 @@ def register_recordings(
     hypotheses += [(f"yaw sweep {c.yaw_deg:.0f} deg" + (f", peak {c.peak + 1}" if c.peak else ""), c.canonical_from_session)
                    for c in cands]
     scored_frames = evenly_spaced(n_dyn, cfg.score_views)
+    # Matched at the third level: normals fine enough for the point-to-plane inlier test.
+    surface_voxel = cfg.icp_voxels_m[min(2, len(cfg.icp_voxels_m) - 1)]
+    surface = target(surface_voxel)
+    scored_points = [frame_points(dynamic, int(t), **view_args) for t in scored_frames]
     data = ScoringData(
-        # Matched at the third level: normals fine enough for the point-to-plane inlier test.
-        static_surface=target(cfg.icp_voxels_m[min(2, len(cfg.icp_voxels_m) - 1)]),
+        static_surface=surface,
         static_views=depth_views(static, cfg.score_views, **view_args),
         static_points=np.asarray(at(cfg.icp_voxels_m[min(1, len(cfg.icp_voxels_m) - 1)])[0].points),
-        dynamic_points=tuple(frame_points(dynamic, int(t), **view_args)[0] for t in scored_frames),
+        dynamic_points=tuple(p for p, _ in scored_points),
         dynamic_views=depth_views(dynamic, cfg.score_views, **view_args),
         frame_weights=keep[scored_frames],
+        static_luminance=luminance(np.asarray(at(surface_voxel)[0].colors)),
+        static_groups=surface_groups(surface.points, surface.normals, up),
+        dynamic_luminance=tuple(luminance(c) for _, c in scored_points),
     )
 
     def score(name: str, m: np.ndarray) -> HypothesisScore:
@@ -238,7 +248,7 @@ def register_recordings(
     diagnostics["verdict"] = {"failed": list(failed), "rival": rival.name if rival else None,
                               "rival_support": rival.support if rival else None, "rival_ratio": _ratio(best, rival)}
     if failed and cfg.refuse_unconvincing:
-        raise RegistrationError(_refusal_message(best, rival, failed), tuple(distinct), tuple(failed))
+        raise RegistrationError(_refusal_message(best, rival, failed, cfg), tuple(distinct), tuple(failed))
 
     # Frames in which the part has not moved yet agree with the static scene everywhere; frames
     # with the part open see new surface (the moved part, the inside). Those new surfaces lie
@@ -271,11 +281,17 @@ def register_recordings(
         transform, diagnostics["colored"] = _colored_icp(transform, at, score, up, cfg)
         diagnostics["colored"]["seconds"] = time.perf_counter() - t3
 
-    s, d = at(finest)
-    residual, inliers = _point_to_plane_stats(d, s, transform, cfg.inlier_distance_m)
     final = score(best.name, transform)
     tilt_deg = float(np.rad2deg(tilt_of(transform, up)))
     diagnostics["final"] = {**final.as_dict(), "tilt_deg": tilt_deg, "yaw_deg": _yaw_deg(transform, up)}
+    # The texture is compared at the refined placement: a few centimetres off, as the coarse
+    # stages leave it, fine texture (poster stripes, floor boards) no longer lines up.
+    failed = _texture_refusal(final, cfg)
+    diagnostics["verdict"]["failed"] += failed
+    if failed and cfg.refuse_unconvincing:
+        raise RegistrationError(_refusal_message(final, rival, failed, cfg), (final, *distinct[1:]), tuple(failed))
+    s, d = at(finest)
+    residual, inliers = _point_to_plane_stats(d, s, transform, cfg.inlier_distance_m)
     covariance = None
     if cfg.uncertainty_blocks >= 3:
         t4 = time.perf_counter()
@@ -433,15 +449,28 @@ def _refusals(best: HypothesisScore, rival: HypothesisScore | None, cfg: Registr
     return failed
 
 
-def _refusal_message(best: HypothesisScore, rival: HypothesisScore | None, failed: list[str]) -> str:
-    other = (f"; the best placement more than that away, '{rival.name}': support {rival.support:.3f}, overlap "
+def _texture_refusal(final: HypothesisScore, cfg: RegistrationConfig) -> list[str]:
+    """The texture test of the refined placement, as a sentence with its numbers (or none)."""
+    if final.colour_contrast < cfg.min_colour_contrast or final.colour_agreement >= cfg.min_colour_agreement:
+        return []  # agrees, or too little texture to tell (the geometric tests then decide alone)
+    return [f"refined, its matched points' colours correlate with the static surfaces' at only "
+            f"{final.colour_agreement:.2f} (min_colour_agreement {cfg.min_colour_agreement:g}; about 0 for unrelated "
+            f"textures) although those surfaces carry texture (RMS {final.colour_contrast:.3f} about each surface's "
+            f"mean): the shapes match (a corner onto another corner, a wall onto another wall) but the surfaces "
+            f"are not the same ones"]
+
+
+def _refusal_message(best: HypothesisScore, rival: HypothesisScore | None, failed: list[str],
+                     cfg: RegistrationConfig) -> str:
+    other = (f"; the best placement more than {cfg.rival_distance_m:g} m away, '{rival.name}': support {rival.support:.3f}, overlap "
              f"{100 * rival.overlap:.0f}%, inliers {100 * rival.inlier_ratio:.0f}%") if rival is not None else ""
     return (
         "register: no placement of the dynamic recording in the static one is convincing, so registration stops "
         "here rather than pass a wrong one on (every surface it misplaces would become a moving part). "
         f"Best hypothesis '{best.name}': support {best.support:.3f} (points on static surfaces minus points in "
         f"space the static recording saw empty, per dynamic point), overlap {100 * best.overlap:.0f}%, inliers "
-        f"{100 * best.inlier_ratio:.0f}% of the overlap, weakest constraint {best.constraint:.4f}{other}. "
+        f"{100 * best.inlier_ratio:.0f}% of the overlap, weakest constraint {best.constraint:.4f}, colour agreement "
+        f"{best.colour_agreement:.2f} on texture of RMS {best.colour_contrast:.3f}{other}. "
         f"Failed: {'; '.join(failed)}. "
         "What to do: check that both recordings show the same room and the same furniture; record the dynamic "
         "recording so that at least a third of what it sees was also covered by the static sweep (start it from "

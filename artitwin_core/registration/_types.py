@@ -94,6 +94,14 @@ class RegistrationConfig:
         min_constraint: refuse when the best hypothesis' matched points pin its weakest
             direction less than this (see ``weakest_constraint``: 1/3 for three orthogonal
             planes in equal shares, 0 for one plane): the dynamic recording could slide.
+        min_colour_agreement: refuse when, at the final placement, the texture on the matched
+            surfaces agrees less than this (``HypothesisScore.colour_agreement``, a correlation:
+            about 0 for unrelated textures, 0.4-0.9 for the right placement on the benchmark
+            scenes): the geometry matched surfaces of the same shape but not the same ones (a
+            corner the static sweep never saw laid onto another corner of the room).
+        min_colour_contrast: the texture test is made only when the static surfaces' texture
+            varies by at least this much RMS about each surface's mean (intensity, 0-1): on
+            plain surfaces the correlation is noise whatever the placement.
         refuse_unconvincing: raise :class:`RegistrationError` when a refusal test fails; False
             returns the best hypothesis anyway (its scores are in the result), for inspection.
     """
@@ -128,6 +136,8 @@ class RegistrationConfig:
     rival_distance_m: float = 0.5
     max_rival_ratio: float = 0.7
     min_constraint: float = 0.003
+    min_colour_agreement: float = 0.2
+    min_colour_contrast: float = 0.02
     refuse_unconvincing: bool = True
 
 
@@ -147,6 +157,12 @@ class HypothesisScore:
         inlier_ratio: of those, the fraction on its surfaces (frames weighted as for support).
         constraint: how well the dynamic points on static surfaces pin the motion in its
             weakest direction (``weakest_constraint``).
+        colour_agreement: Pearson correlation (-1 to 1) of the dynamic points' intensity with the
+            static surface's where they match, each taken about its surface's mean (see
+            :mod:`._photometric`); frames weighted as for support times their matches. NaN when
+            no frame had texture to compare.
+        colour_contrast: RMS of the static intensity (0-1) about each matched surface's mean,
+            averaged the same way: how much texture the agreement was measured on.
     """
 
     name: str
@@ -155,10 +171,13 @@ class HypothesisScore:
     overlap: float
     inlier_ratio: float
     constraint: float
+    colour_agreement: float = float("nan")
+    colour_contrast: float = 0.0
 
     def as_dict(self) -> dict:
         return {"name": self.name, "support": self.support, "overlap": self.overlap,
-                "inlier_ratio": self.inlier_ratio, "constraint": self.constraint}
+                "inlier_ratio": self.inlier_ratio, "constraint": self.constraint,
+                "colour_agreement": self.colour_agreement, "colour_contrast": self.colour_contrast}
 
 
 class RegistrationError(InputError):
