@@ -74,22 +74,6 @@ def tilt_vector(transform: np.ndarray, up: np.ndarray) -> np.ndarray:
     return np.cross(u, transform[:3, :3] @ u)
 
 
-def match_tilt(transform: np.ndarray, reference: np.ndarray, up: np.ndarray, centre: np.ndarray) -> np.ndarray:
-    """``transform`` rotated (about ``centre [3]``, target frame) by the least rotation that gives
-    it the tilt of ``reference``: its yaw and the position of ``centre`` are kept."""
-    u = np.asarray(up, dtype=np.float64)
-    have, want = transform[:3, :3] @ u, reference[:3, :3] @ u
-    axis = np.cross(have, want)
-    sine = float(np.linalg.norm(axis))
-    if sine < 1e-12:
-        return transform
-    fix = axis_angle_to_matrix(axis / sine, float(np.arctan2(sine, have @ want)))
-    step = np.eye(4)
-    step[:3, :3] = fix
-    step[:3, 3] = centre - fix @ centre
-    return step @ transform
-
-
 @dataclass(frozen=True)
 class PlaneSystem:
     """One Gauss-Newton linearisation of the robust point-to-plane cost about the current pose.
