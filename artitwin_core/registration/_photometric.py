@@ -4,10 +4,11 @@ Where two recordings overlap in part, what they both saw is often a floor, a wal
 front: planes whose normals leave the slide along the front nearly free, so point-to-plane ICP
 settles wherever small biases push it (centimetres, along the weakest direction). The texture
 pins that slide. Matching colours between two fused clouds (coloured ICP) needs both clouds to
-sample the texture densely; at phone depth resolution (a point every few centimetres per frame)
-the colour gradients estimated from neighbouring points are noise. Here instead each dynamic
-point, with the colour its own frame saw, is projected into the static recording's images and
-compared with what they show there, at full image resolution: a direct photometric term.
+sample the texture densely; at phone depth resolution (a point every few centimetres per frame,
+one colour sample each) its minimum lay centimetres from the truth (docs/accuracy.md). Here
+instead each dynamic point, with the colour its own frame saw, is projected into the static
+recording's images and compared with what they show there, at full image resolution: a direct
+photometric term.
 
 It is minimised jointly with the point-to-plane term, yaw about gravity and translation only,
 by Gauss-Newton, each residual weighted by its inverse variance under a Tukey kernel. A grey-level
