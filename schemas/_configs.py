@@ -62,7 +62,11 @@ class RegisterConfig(StageConfig):
     gravity: Gravity = Field(default=(0.0, -1.0, 0.0), description="Gravity direction in both session frames (ARKit: -y).")
     max_depth_m: float = Field(default=4.5, gt=0, description="Depth beyond this is ignored, metres.")
     yaw_step_deg: float = Field(default=2.0, gt=0, le=30, description="Step of the exhaustive yaw sweep about gravity, degrees.")
-    colored_icp_voxel_m: float = Field(default=0.01, ge=0, description="Voxel of the final coloured ICP, metres (0 skips it).")
+    photometric: bool = Field(
+        default=True,
+        description="Finish with a photometric refinement: the dynamic points' colours against the static images pin the "
+        "slide along the furniture's front that the geometry leaves free. False skips it.",
+    )
     refuse_unconvincing: bool = Field(
         default=True,
         description="Stop with an error naming the scores when no placement of the dynamic recording is convincing "

@@ -33,16 +33,18 @@ from tasks._convert import to_artifact, to_core
 from tasks._stage import stage
 
 
-@stage(name="register", version=6, config=RegisterConfig, output=Registration)
+@stage(name="register", version=7, config=RegisterConfig, output=Registration)
 def register_dynamic(static: CaptureArtifact, dynamic: CaptureArtifact, config: RegisterConfig) -> Registration:
     """``canonical_from_session`` of the dynamic recording: hypotheses from the poses and a yaw sweep
-    about gravity, scored against what the static recording saw, gravity-keeping ICP, coloured ICP, and
-    a check that the refined placement lays the same texture on the static surfaces.
+    about gravity, scored against what the static recording saw, gravity-keeping ICP, a photometric
+    refinement against the static images, and a check that the refined placement lays the same
+    texture on the static surfaces.
 
     Raises :class:`artitwin_core.registration.RegistrationError` (an ``InputError``) when no
     hypothesis is convincing, so that part_masks never runs on a wrong placement."""
     cfg = RegistrationConfig(
-        max_depth_m=config.max_depth_m, yaw_step_deg=config.yaw_step_deg, colored_icp_voxel_m=config.colored_icp_voxel_m,
+        max_depth_m=config.max_depth_m, yaw_step_deg=config.yaw_step_deg,
+        photometric_blur_rad=RegistrationConfig.photometric_blur_rad if config.photometric else (),
         refuse_unconvincing=config.refuse_unconvincing,
     )
     result = register_recordings(to_core(Capture, static), to_core(Capture, dynamic), gravity=config.gravity, config=cfg)
@@ -53,7 +55,7 @@ def register_dynamic(static: CaptureArtifact, dynamic: CaptureArtifact, config: 
         residual_m=float(result.residual_m),
         inlier_fraction=float(result.inlier_fraction),
         method="pose+yaw-sweep-hypotheses+free-space-scoring+gravity-tukey-icp"
-        + ("+colored-icp" if config.colored_icp_voxel_m > 0 else ""),
+        + ("+photometric" if config.photometric else ""),
         covariance=result.covariance,
         hypothesis=str(final["name"]),
         support=float(final["support"]),

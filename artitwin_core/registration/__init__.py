@@ -3,12 +3,12 @@
 ``register_recordings(static, dynamic, gravity=...)`` -> :class:`RegistrationResult`: hypotheses
 from the recorded poses and a yaw sweep about the shared gravity, refined by robust point-to-plane
 ICP that keeps gravity and scored by where they put the dynamic points in what the static
-recording saw; then finer ICP (a tilt within the sensors' bound) and coloured ICP. It raises
-:class:`RegistrationError` when no hypothesis is convincing, or when the refined placement lays
-other texture on the static surfaces than theirs (the same shapes, other surfaces).
-``fused_cloud`` and ``frame_points`` turn a capture's depth into points, for the other stages
-that need them. ``estimate_session_drift`` fits a recording's linear pose drift against the
-canonical model, once its moving parts are masked.
+recording saw; then finer ICP (a tilt within the sensors' bound) and a photometric refinement
+against the static images. It raises :class:`RegistrationError` when no hypothesis is
+convincing, or when the refined placement lays other texture on the static surfaces than theirs
+(the same shapes, other surfaces). ``fused_cloud`` and ``frame_points`` turn a capture's depth
+into points, for the other stages that need them. ``estimate_session_drift`` fits a recording's
+linear pose drift against the canonical model, once its moving parts are masked.
 """
 
 from artitwin_core.registration._clouds import backproject, frame_points, fused_cloud

@@ -15,7 +15,7 @@ most likely still closed) weigh more; a wrong placement conflicts in the early f
 
 Geometry cannot tell apart surfaces of the same shape (two corners of a box-shaped room), so
 each hypothesis also gets the agreement of the texture on its matched surfaces
-(:mod:`._photometric`).
+(:mod:`._texture`).
 """
 
 from __future__ import annotations
@@ -27,7 +27,7 @@ from scipy import ndimage
 
 from artitwin_core.capture import Capture
 from artitwin_core.registration._gravity_icp import PlaneTarget
-from artitwin_core.registration._photometric import within_surface_correlation
+from artitwin_core.registration._texture import within_surface_correlation
 from artitwin_core.registration._types import HypothesisScore
 
 
@@ -197,9 +197,9 @@ class ScoringData:
         dynamic_views: those frames' depth maps.
         frame_weights: ``[len(dynamic_points)]`` how much each of those frames counts.
         static_luminance: ``[len(static_surface.points)]`` the static surface's intensity
-            (``_photometric.luminance`` of its colours); None skips the texture test.
+            (``_texture.luminance`` of its colours); None skips the texture test.
         static_groups: ``[len(static_surface.points)]`` the planar surface each static surface
-            point lies on (``_photometric.surface_groups``).
+            point lies on (``_texture.surface_groups``).
         dynamic_luminance: per scored dynamic frame, the intensity ``[M_i]`` of its points.
     """
 
@@ -227,7 +227,7 @@ def score_hypothesis(
     its inlier ratio the weighted pooled share of agreeing points among those where the static
     recording looked; its overlap the unweighted share of dynamic points where it looked. Its
     colour agreement is the mean over frames of the within-surface correlation of the agreeing
-    points' intensities with the static ones (``_photometric.within_surface_correlation``),
+    points' intensities with the static ones (``_texture.within_surface_correlation``),
     weighted by frame weight times agreeing points, and its colour contrast the same mean of the
     static texture's RMS; NaN and 0 where no frame has enough texture.
     """

@@ -74,20 +74,43 @@ def tilt_vector(transform: np.ndarray, up: np.ndarray) -> np.ndarray:
     return np.cross(u, transform[:3, :3] @ u)
 
 
-def match_tilt(transform: np.ndarray, reference: np.ndarray, up: np.ndarray, centre: np.ndarray) -> np.ndarray:
-    """``transform`` rotated (about ``centre [3]``, target frame) by the least rotation that gives
-    it the tilt of ``reference``: its yaw and the position of ``centre`` are kept."""
-    u = np.asarray(up, dtype=np.float64)
-    have, want = transform[:3, :3] @ u, reference[:3, :3] @ u
-    axis = np.cross(have, want)
-    sine = float(np.linalg.norm(axis))
-    if sine < 1e-12:
-        return transform
-    fix = axis_angle_to_matrix(axis / sine, float(np.arctan2(sine, have @ want)))
-    step = np.eye(4)
-    step[:3, :3] = fix
-    step[:3, 3] = centre - fix @ centre
-    return step @ transform
+@dataclass(frozen=True)
+class PlaneSystem:
+    """One Gauss-Newton linearisation of the robust point-to-plane cost about the current pose.
+
+    ``hessian [D, D]`` and ``gradient [D]`` (Tukey-weighted ``J^T W J`` and ``J^T W r``) in the
+    parameters ``(yaw, tx, ty, tz)`` (``D = 4``; with the tilt, ``(wx, wy, wz, tx, ty, tz)``),
+    the rotation about ``centre [3]`` (the weighted centroid of the matches, which nearly
+    decouples it from the translation); ``residuals [K]`` the matched point-to-plane distances
+    (metres)."""
+
+    hessian: np.ndarray
+    gradient: np.ndarray
+    centre: np.ndarray
+    residuals: np.ndarray
+
+
+def plane_system(
+    points: np.ndarray, target: PlaneTarget, up: np.ndarray, *, max_distance_m: float, kernel_m: float,
+    tilt: bool = False,
+) -> PlaneSystem | None:
+    """The point-to-plane normal equations of ``points [N, 3]`` (already moved into the target
+    frame) against ``target``: nearest neighbours within ``max_distance_m``, a Tukey kernel of
+    width ``kernel_m`` on the residual. None when fewer than 10 points match or none is weighted."""
+    up = np.asarray(up, dtype=np.float64)
+    dist, idx = target.tree.query(points, distance_upper_bound=max_distance_m)
+    ok = np.isfinite(dist)
+    if ok.sum() < 10:
+        return None
+    p, q, n = points[ok], target.points[idx[ok]], target.normals[idx[ok]]
+    r = np.einsum("ij,ij->i", p - q, n)
+    w = np.where(np.abs(r) < kernel_m, (1.0 - (r / kernel_m) ** 2) ** 2, 0.0)
+    if w.sum() <= 0:
+        return None
+    centre = (w[:, None] * p).sum(0) / w.sum()
+    j_rot = np.cross(p - centre, n)  # d r / d omega for x -> x + omega x (x - centre)
+    jac = np.hstack([j_rot if tilt else (j_rot @ up)[:, None], n])
+    return PlaneSystem(jac.T @ (w[:, None] * jac), jac.T @ (w * r), centre, r)
 
 
 def gravity_icp(
@@ -123,27 +146,18 @@ def gravity_icp(
     done = 0
     for _ in range(iterations):
         done += 1
-        p = src @ transform[:3, :3].T + transform[:3, 3]
-        dist, idx = target.tree.query(p, distance_upper_bound=max_distance_m)
-        ok = np.isfinite(dist)
-        if ok.sum() < 10:
+        system = plane_system(src @ transform[:3, :3].T + transform[:3, 3], target, up,
+                              max_distance_m=max_distance_m, kernel_m=kernel_m, tilt=six)
+        if system is None:
             break
-        p, q, n = p[ok], target.points[idx[ok]], target.normals[idx[ok]]
-        r = np.einsum("ij,ij->i", p - q, n)
-        w = np.where(np.abs(r) < kernel_m, (1.0 - (r / kernel_m) ** 2) ** 2, 0.0)
-        if w.sum() <= 0:
-            break
-        centre = (w[:, None] * p).sum(0) / w.sum()
-        j_rot = np.cross(p - centre, n)  # d r / d omega for x -> x + omega x (x - centre)
-        jac = np.hstack([j_rot if six else (j_rot @ up)[:, None], n])
-        h = jac.T @ (w[:, None] * jac)
-        g = jac.T @ (w * r)
+        h = system.hessian
         # A direction the points do not constrain (a plane slides along itself) gets no step.
-        h += np.eye(len(h)) * (1e-6 * np.trace(h) / len(h) + 1e-12)
-        x = -np.linalg.solve(h, g)
+        h = h + np.eye(len(h)) * (1e-6 * np.trace(h) / len(h) + 1e-12)
+        x = -np.linalg.solve(h, system.gradient)
         omega = x[:3] if six else x[0] * up
         angle = float(np.linalg.norm(omega))
         rot = axis_angle_to_matrix(omega / angle, angle) if angle > 0 else np.eye(3)
+        centre = system.centre
         step = np.eye(4)
         step[:3, :3] = rot
         step[:3, 3] = centre - rot @ centre + x[-3:]

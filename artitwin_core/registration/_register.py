@@ -7,12 +7,13 @@ estimates yaw and translation only (:mod:`._gravity_icp`: both sessions measure 
 scored by where its dynamic points fall in what the static recording saw (:mod:`._evidence`): on
 its surfaces, in space it saw through, or where it never looked. The best-supported hypothesis
 is refined at finer voxels, the finest letting the tilt move within the sensors' few tenths of a
-degree; a coloured ICP finishes, so texture helps where the geometry slides (a long wall). When
+degree; a photometric refinement against the static images finishes (:mod:`._photometric`), so
+texture pins what the geometry leaves free (a slide along a cabinet front or a long wall). When
 no hypothesis is convincing (too little overlap, space seen empty, a runner-up nearly as good,
 or matches that leave a direction free) :class:`RegistrationError` says so with the numbers,
 rather than handing the later stages a placement that turns the whole room into moving parts.
 The refined placement must also carry the same texture as the static surfaces it lands on
-(:mod:`._photometric`): a corner of the room that the static sweep never saw fits another
+(:mod:`._texture`): a corner of the room that the static sweep never saw fits another
 corner's walls and floor perfectly, and only the texture tells them apart.
 """
 
@@ -34,8 +35,9 @@ from artitwin_core.registration._evidence import (
     score_hypothesis,
 )
 from artitwin_core.registration._global import gravity_basis, pose_hypotheses, yaw_candidates
-from artitwin_core.registration._gravity_icp import PlaneTarget, gravity_icp, match_tilt, tilt_of, tilt_vector
-from artitwin_core.registration._photometric import luminance, surface_groups
+from artitwin_core.registration._gravity_icp import PlaneTarget, gravity_icp, tilt_of, tilt_vector
+from artitwin_core.registration._photometric import photometric_refine
+from artitwin_core.registration._texture import luminance, surface_groups
 from artitwin_core.registration._types import (
     HypothesisScore,
     RegistrationConfig,
@@ -50,16 +52,6 @@ def _icp(source, target, init: np.ndarray, voxel: float, iterations: int = 30):
     est = _reg.TransformationEstimationPointToPlane(_reg.TukeyLoss(k=1.5 * voxel))
     crit = _reg.ICPConvergenceCriteria(relative_fitness=1e-7, relative_rmse=1e-7, max_iteration=iterations)
     return _reg.registration_icp(source, target, 2.5 * voxel, init, est, crit)
-
-
-def _normalised_colours(cloud: o3d.geometry.PointCloud) -> o3d.geometry.PointCloud:
-    """A copy whose colours are divided by their median per channel: exposure and white balance
-    differ between the two sessions, and coloured ICP compares intensities directly."""
-    out = o3d.geometry.PointCloud(cloud)
-    c = np.asarray(cloud.colors)
-    med = np.maximum(np.median(c, axis=0), 1e-3)
-    out.colors = o3d.utility.Vector3dVector(np.clip(c / med * 0.5, 0.0, 1.0))
-    return out
 
 
 def _point_to_plane_stats(source, target, transform: np.ndarray, inlier_m: float) -> tuple[float, float]:
@@ -163,7 +155,7 @@ def register_recordings(
     common = dict(stride=cfg.pixel_stride, max_depth_m=cfg.max_depth_m, min_confidence=cfg.min_confidence)
     clouds: dict[float, tuple] = {}
     targets: dict[float, PlaneTarget] = {}
-    finest = min(cfg.icp_voxels_m + ((cfg.colored_icp_voxel_m,) if cfg.colored_icp_voxel_m > 0 else ()))
+    finest = min(cfg.icp_voxels_m)
     base_s = fused_cloud(static, range(static.num_frames), voxel_m=finest, **common)
     base_d = fused_cloud(dynamic, range(n_dyn), voxel_m=finest, keep_fraction=keep, **common)
 
@@ -276,10 +268,12 @@ def register_recordings(
         transform, diagnostics["tilt"] = _tilt(np.asarray(at(voxel)[1].points), target(voxel), transform, up, voxel, cfg)
         diagnostics["tilt"]["seconds"] = time.perf_counter() - t2
 
-    if cfg.colored_icp_voxel_m > 0:
+    if cfg.photometric_blur_rad:
         t3 = time.perf_counter()
-        transform, diagnostics["colored"] = _colored_icp(transform, at, score, up, cfg)
-        diagnostics["colored"]["seconds"] = time.perf_counter() - t3
+        voxel = cfg.icp_voxels_m[-1]
+        transform, diagnostics["photometric"] = _photometric(
+            static, dynamic, frames, np.asarray(at(voxel)[1].points), target(voxel), transform, score, up, voxel, cfg)
+        diagnostics["photometric"]["seconds"] = time.perf_counter() - t3
 
     final = score(best.name, transform)
     tilt_deg = float(np.rad2deg(tilt_of(transform, up)))
@@ -351,38 +345,26 @@ def _spatial_blocks(points: np.ndarray, blocks: int) -> np.ndarray:
     return label
 
 
-def _colored_icp(transform: np.ndarray, at, score, up: np.ndarray, cfg: RegistrationConfig) -> tuple[np.ndarray, dict]:
-    """Coloured ICP at twice ``cfg.colored_icp_voxel_m``, then at it, from ``transform``.
+def _photometric(static: Capture, dynamic: Capture, frames, points: np.ndarray, target: PlaneTarget,
+                 transform: np.ndarray, score, up: np.ndarray, voxel: float, cfg: RegistrationConfig) -> tuple[np.ndarray, dict]:
+    """The photometric and point-to-plane refinement (:mod:`._photometric`) from ``transform``.
 
     Where the recordings overlap only in part, the geometry in common often pins everything but
-    a slide along the furniture's front (measured 1-4 cm off after the point-to-plane stages),
-    and only the texture pins that; the coarser level widens coloured ICP's reach to it. The
-    result is kept if it moved less than ``colored_icp_max_step_m`` and 1 degree (a refinement,
-    not a jump to another basin) and its geometric support did not drop by more than 0.02. It
-    estimates 6 DOF; its tilt is reset to the one it started from (about the dynamic cloud's
-    centre), which the tilt test decided.
-    """
-    moved = transform
-    try:
-        for voxel in (2 * cfg.colored_icp_voxel_m, cfg.colored_icp_voxel_m):
-            s, d = at(voxel)
-            est = _reg.TransformationEstimationForColoredICP(lambda_geometric=cfg.colored_icp_lambda_geometric,
-                                                            kernel=_reg.TukeyLoss(k=1.5 * voxel))
-            crit = _reg.ICPConvergenceCriteria(relative_fitness=1e-7, relative_rmse=1e-7, max_iteration=30)
-            r = _reg.registration_colored_icp(_normalised_colours(d), _normalised_colours(s), 2.0 * voxel,
-                                              moved, est, crit)
-            moved = np.asarray(r.transformation)
-    except RuntimeError as err:  # open3d raises when too few correspondences carry colour
-        return transform, {"error": str(err), "accepted": False}
-    centre = np.asarray(d.points).mean(0) @ moved[:3, :3].T + moved[:3, 3]
-    moved = match_tilt(moved, transform, up, centre)
-    step = np.linalg.inv(transform) @ moved
-    before, after = score("before", transform).support, score("after", moved).support
-    accepted = bool(np.linalg.norm(step[:3, 3]) < cfg.colored_icp_max_step_m and _angle(step[:3, :3]) < np.deg2rad(1.0)
-                    and after >= before - 0.02)
-    info = {"fitness": r.fitness, "inlier_rmse_m": r.inlier_rmse, "accepted": accepted,
-            "step_m": float(np.linalg.norm(step[:3, 3])), "support_before": before, "support_after": after}
-    return (moved if accepted else transform), info
+    a slide along the furniture's front, and only the texture pins that. The result is kept if
+    it moved less than ``photometric_max_step_m`` (a refinement, not a jump to another basin)
+    and its geometric support did not drop by more than 0.02."""
+    r = photometric_refine(
+        static, dynamic, frames, target, points, transform, up, blur_rad=tuple(cfg.photometric_blur_rad),
+        num_views=cfg.photometric_views, max_points=cfg.photometric_points, visibility_m=cfg.photometric_visibility_m,
+        max_distance_m=2.5 * voxel, kernel_m=1.5 * voxel, grey_noise=cfg.photometric_noise, stride=cfg.pixel_stride,
+        max_depth_m=cfg.max_depth_m, min_confidence=cfg.min_confidence,
+    )
+    step = np.linalg.inv(transform) @ r.transform
+    before, after = score("before", transform).support, score("after", r.transform).support
+    accepted = bool(np.linalg.norm(step[:3, 3]) < cfg.photometric_max_step_m and after >= before - 0.02)
+    info = {"levels": list(r.levels), "accepted": accepted, "step_m": float(np.linalg.norm(step[:3, 3])),
+            "step_deg": float(np.rad2deg(_angle(step[:3, :3]))), "support_before": before, "support_after": after}
+    return (r.transform if accepted else transform), info
 
 
 def _angle(rotation: np.ndarray) -> float:

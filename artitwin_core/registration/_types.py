@@ -28,19 +28,25 @@ class RegistrationConfig:
         peaks_per_yaw: translations (correlation peaks at least 0.5 m apart) tried per yaw:
             with partial overlap the highest peak can be a wall and floor slid along each other.
         icp_voxels_m: coarse-to-fine voxel sizes of the point-to-plane ICP (Tukey kernel).
-        colored_icp_voxel_m: voxel size of the final coloured ICP (run at twice this, then at
-            this), or 0 to skip it.
-        colored_icp_max_step_m: the coloured ICP's result is kept only if it moved the
-            registration less than this (metres) and 1 degree.
-        colored_icp_lambda_geometric: weight of the point-to-plane term in the coloured ICP (the
-            colour term gets ``1 - lambda``). Open3D applies one robust kernel (a Tukey of
-            ``1.5 * colored_icp_voxel_m``, metres) to both residuals, so this also sets which
-            intensity differences count as outliers: at 0.9 the colour term outweighed the
-            geometry ~100x and every intensity difference above ~0.05 was dropped (three quarters
-            of the correspondences at the true pose on the strong-hand-occlusion scene), which left
-            minima ~1.5 cm either side of the truth along the cabinet front (that scene slid 15 mm,
-            from the truth too); at 0.99 the two terms balance and differences up to ~0.15 count
-            (0.995-0.999 fit the benchmark scenes as well but let the high-noise one slide 13 mm).
+        photometric_blur_rad: the photometric refinement's levels, coarse to fine: the Gaussian
+            blur of the images (radians; times the focal length gives pixels). The coarse level
+            reaches across a texture's features (about 5 cm at 2 m), the finest is precise.
+            Empty skips the refinement.
+        photometric_views: static images the dynamic points are compared with (evenly spaced).
+        photometric_points: at most this many dynamic points (a fixed random subset).
+        photometric_visibility_m: a static image sees a dynamic point when its depth there is
+            within this (metres); pixels next to a depth jump larger than this are not used
+            (their colour mixes two surfaces).
+        photometric_max_step_m: the photometric refinement's result is kept only if it moved
+            the registration less than this (metres): its coarse level reaches about 10 cm at
+            room scale, and the point-to-plane stages can leave that much along a free direction.
+        photometric_noise: the least standard deviation of a grey-level residual (grey levels
+            in [0, 1]) where the texture is flat: what two recordings of one surface disagree
+            by beyond their noise (a gain per pair of frames does not capture all of exposure
+            and white balance, nor vignetting or the hand's shadow). Without it the residuals
+            of untextured surfaces (most of them, and near zero) set the scale, every faint
+            gradient weighs as much as a point-to-plane match, and a hand's shadow on a white
+            cabinet pulls the result by about a centimetre (docs/accuracy.md).
         inlier_distance_m: a dynamic point is an inlier when its point-to-plane distance to the
             static surface is below this; sets the reported inlier fraction and residual.
         consistent_frame_margin: after the coarse stages, the fine stages use the dynamic frames
@@ -117,9 +123,12 @@ class RegistrationConfig:
     num_candidates: int = 6
     peaks_per_yaw: int = 2
     icp_voxels_m: tuple[float, ...] = (0.08, 0.04, 0.02, 0.01)
-    colored_icp_voxel_m: float = 0.01
-    colored_icp_max_step_m: float = 0.05
-    colored_icp_lambda_geometric: float = 0.99
+    photometric_blur_rad: tuple[float, ...] = (0.024, 0.012, 0.006)
+    photometric_views: int = 12
+    photometric_points: int = 20000
+    photometric_visibility_m: float = 0.03
+    photometric_max_step_m: float = 0.15
+    photometric_noise: float = 0.02
     inlier_distance_m: float = 0.02
     consistent_frame_margin: float = 0.03
     min_consistent_frames: int = 3
@@ -159,7 +168,7 @@ class HypothesisScore:
             weakest direction (``weakest_constraint``).
         colour_agreement: Pearson correlation (-1 to 1) of the dynamic points' intensity with the
             static surface's where they match, each taken about its surface's mean (see
-            :mod:`._photometric`); frames weighted as for support times their matches. NaN when
+            :mod:`._texture`); frames weighted as for support times their matches. NaN when
             no frame had texture to compare.
         colour_contrast: RMS of the static intensity (0-1) about each matched surface's mean,
             averaged the same way: how much texture the agreement was measured on.
@@ -208,7 +217,7 @@ class RegistrationResult:
             it, from a spatial block jackknife; ``None`` where not estimated. The error at a
             point ``p`` has covariance ``J C J^T`` with ``J = [-[p]_x, I]``.
         diagnostics: per stage (``"fuse"``, ``"global"``, ``"frames"``, ``"icp_0.02"``, ...,
-            ``"colored"``, ``"final"``) a dict with its fitness, inlier RMSE (metres), seconds;
+            ``"photometric"``, ``"final"``) a dict with its fitness, inlier RMSE (metres), seconds;
             the global stage lists every refined hypothesis with its scores, and ``"final"``
             the chosen one's scores at the finest level and its tilt.
         hypotheses: the distinct refined hypotheses, best first (the first is the one refined

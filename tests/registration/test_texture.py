@@ -5,8 +5,8 @@ from __future__ import annotations
 import numpy as np
 
 from artitwin_core.registration import HypothesisScore, RegistrationConfig
-from artitwin_core.registration._photometric import surface_groups, within_surface_correlation
 from artitwin_core.registration._register import _texture_refusal
+from artitwin_core.registration._texture import surface_groups, within_surface_correlation
 
 UP = np.array([0.0, 1.0, 0.0])
 
