@@ -33,7 +33,7 @@ from tasks._convert import to_artifact, to_core
 from tasks._stage import stage
 
 
-@stage(name="register", version=7, config=RegisterConfig, output=Registration)
+@stage(name="register", version=8, config=RegisterConfig, output=Registration)
 def register_dynamic(static: CaptureArtifact, dynamic: CaptureArtifact, config: RegisterConfig) -> Registration:
     """``canonical_from_session`` of the dynamic recording: hypotheses from the poses and a yaw sweep
     about gravity, scored against what the static recording saw, gravity-keeping ICP, a photometric

@@ -97,9 +97,13 @@ class RegistrationConfig:
             the best one slid a little along a wall.
         max_rival_ratio: refuse when the rival's support is at least this fraction of the
             best's (two different placements explain the data about equally well).
+            A placement that lays other texture on textured surfaces than theirs
+            (``min_colour_agreement``) is no rival.
         min_constraint: refuse when the best hypothesis' matched points pin its weakest
             direction less than this (see ``weakest_constraint``: 1/3 for three orthogonal
             planes in equal shares, 0 for one plane): the dynamic recording could slide.
+            Not where the surfaces carry texture and the photometric refinement runs: the
+            texture pins the slide, and the texture test checks the result.
         min_colour_agreement: refuse when, at the final placement, the texture on the matched
             surfaces agrees less than this (``HypothesisScore.colour_agreement``, a correlation:
             about 0 for unrelated textures, 0.4-0.9 for the right placement on the benchmark
