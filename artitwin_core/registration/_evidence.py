@@ -102,21 +102,27 @@ class Evidence:
         return (self.agree - self.conflict) / max(self.total, 1)
 
 
+def _project(points: np.ndarray, views: DepthViews, i: int, near_m: float):
+    """Pixel ``u, v``, depth ``z`` of ``points [N, 3]`` in view ``i``, and which land inside it
+    in front of the camera (beyond ``near_m``)."""
+    _, h, w = views.near_depth.shape
+    m = views.camera_from_world[i]
+    pc = points @ m[:3, :3].T + m[:3, 3]
+    z = pc[:, 2]
+    front = z > near_m
+    fx, fy, cx, cy = views.intrinsics[i]
+    zs = np.where(front, z, 1.0)
+    u = np.rint(pc[:, 0] / zs * fx + cx).astype(np.int64)
+    v = np.rint(pc[:, 1] / zs * fy + cy).astype(np.int64)
+    return u, v, z, front & (u >= 0) & (u < w) & (v >= 0) & (v < h)
+
+
 def free_space_hits(points: np.ndarray, views: DepthViews, margin_m: float, near_m: float = 0.1) -> np.ndarray:
     """``[N]`` number of views whose depth rays passed more than ``margin_m`` beyond each point
     ``points [N, 3]`` (in the views' world frame): the point sits in space those views saw empty."""
     hits = np.zeros(len(points), np.int32)
-    _, h, w = views.near_depth.shape
     for i in range(len(views.camera_from_world)):
-        m = views.camera_from_world[i]
-        pc = points @ m[:3, :3].T + m[:3, 3]
-        z = pc[:, 2]
-        front = z > near_m
-        fx, fy, cx, cy = views.intrinsics[i]
-        zs = np.where(front, z, 1.0)
-        u = np.rint(pc[:, 0] / zs * fx + cx).astype(np.int64)
-        v = np.rint(pc[:, 1] / zs * fy + cy).astype(np.int64)
-        inside = front & (u >= 0) & (u < w) & (v >= 0) & (v < h)
+        u, v, z, inside = _project(points, views, i, near_m)
         near = np.full(len(points), np.nan, np.float32)
         near[inside] = views.near_depth[i][v[inside], u[inside]]
         hits += (np.isfinite(near) & (z < near - margin_m)).astype(np.int32)
@@ -128,15 +134,7 @@ def seen_through(points: np.ndarray, views: DepthViews, i: int, margin_m: float,
     ``points [N, 3]`` (in the view's world frame) that projects there: the view saw through a
     surface of the other recording (a z-buffer of the points, compared with the nearest depth)."""
     _, h, w = views.near_depth.shape
-    m = views.camera_from_world[i]
-    pc = points @ m[:3, :3].T + m[:3, 3]
-    z = pc[:, 2]
-    front = z > near_m
-    fx, fy, cx, cy = views.intrinsics[i]
-    zs = np.where(front, z, 1.0)
-    u = np.rint(pc[:, 0] / zs * fx + cx).astype(np.int64)
-    v = np.rint(pc[:, 1] / zs * fy + cy).astype(np.int64)
-    inside = front & (u >= 0) & (u < w) & (v >= 0) & (v < h)
+    u, v, z, inside = _project(points, views, i, near_m)
     zbuf = np.full(h * w, np.inf)
     np.minimum.at(zbuf, v[inside] * w + u[inside], z[inside])
     near = views.near_depth[i].reshape(-1)
