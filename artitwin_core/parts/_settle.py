@@ -5,12 +5,15 @@ door along its hinge, which vanishes later than the rest of the door and is clus
 piece of static surface at a depth edge; a region too small or too thin to track or to fuse. Each
 must end as one of three fates, and never take the run down:
 
-- **kept**: a part with a joint of its own (a fit that moves, and depth enough to build its mesh);
-- **merged** into a kept part: it has the same joint and states as that part, or no joint of its
-  own while that part's motion explains its depth: its points, moved back to a common state by
-  that part's joint, agree where held still they do not;
-- **dropped**, with the reason: too few depth points, no tracks or no fit, no motion of its own,
-  or nothing explains it.
+- **kept**: a part with a joint of its own (a fit that moves more than a couple of centimetres or
+  degrees, that its own depth confirms, and depth enough to build its mesh);
+- **merged** into a kept part: it has the same joint and states as that part, or that part's
+  motion explains its depth (its points, moved back to a common state by that part's joint,
+  agree where held still they do not), whether or not it was fitted a joint of its own: a strip
+  of a door with a slide fitted to its few tracks is the door;
+- **dropped**, with the reason: too few depth points, no tracks or no fit, no motion of its own
+  (fitted fixed, a joint that hardly moves, or one its depth does not confirm), or nothing
+  explains it.
 
 The kept parts are numbered again in the candidates' order (joint ``k``, final mask label
 ``k + 1``); ``relabel`` applies the decision to the masks, so that masks, joints, the twin and the
