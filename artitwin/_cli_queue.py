@@ -45,9 +45,14 @@ def _fail(message: str, code: int = 2) -> None:
 
 
 def _config(path: Path | None):
+    """The queue's config: the file's, or the stage defaults (``PipelineConfig()``), which is what
+    ``submit_scene``, ``dataset_status`` and the nightly deployment use without one, so that
+    ``status`` finds the runs ``submit`` and the API queued (``artitwin run`` sizes its own for the
+    machine instead)."""
     from artitwin.cli import _load_config
+    from schemas import PipelineConfig
 
-    return _load_config(path)
+    return _load_config(path) if path is not None else PipelineConfig()
 
 
 def submit(
