@@ -254,15 +254,15 @@ def _changed_surfaces(views: list[FrameView], cfg: PartConfig, nearer: bool) -> 
     for t, v in enumerate(views):
         diff = v.rendered_depth - v.observed_depth
         tolerance = depth_tolerance(v.rendered_depth, cfg.change)
-        farther = np.isfinite(diff) & ((diff > tolerance) if nearer else (diff < -tolerance))
+        changed = np.isfinite(diff) & ((diff > tolerance) if nearer else (diff < -tolerance))
         if cfg.vanish_opening_px > 0:
             # Opening drops thin strips along depth edges, where small pose errors look like change;
             # it also drops the thin hole a drawer seen head-on leaves, so it is off by default and
             # the votes over frames and the cluster size reject the edge noise instead.
-            farther = cv2.morphologyEx(farther.astype(np.uint8), cv2.MORPH_OPEN, kernel).astype(bool)
-        if not farther.any():
+            changed = cv2.morphologyEx(changed.astype(np.uint8), cv2.MORPH_OPEN, kernel).astype(bool)
+        if not changed.any():
             continue
-        p = _to_world(v, v.rendered_depth, farther)
+        p = _to_world(v, v.rendered_depth, changed)
         k = np.floor(p / vox).astype(np.int64)
         keys.append(k)
         frames.append(np.full(len(k), t))
