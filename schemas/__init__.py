@@ -54,6 +54,7 @@ from schemas._diagnose import (
     ViewPrediction,
 )
 from schemas._export import ExportBundle, ExportConfig, ExportFile
+from schemas._parts import ChangeStageConfig, PartStageConfig
 from schemas._reconstruct import PoseRefineStageConfig, ReconstructConfig
 
 __all__ = [
@@ -64,6 +65,7 @@ __all__ = [
     "CameraPoses",
     "CaptureArtifact",
     "CaptureCheckConfig",
+    "ChangeStageConfig",
     "DiagnoseConfig",
     "DiagnosisReport",
     "EffectFinding",
@@ -80,6 +82,7 @@ __all__ = [
     "PoseLagStageConfig",
     "JointStateConfig",
     "PartMasksConfig",
+    "PartStageConfig",
     "PoseRefineStageConfig",
     "PredictViewsConfig",
     "ReconstructConfig",

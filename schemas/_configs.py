@@ -8,6 +8,7 @@ from schemas._articulate import ArticulateConfig
 from schemas._base import StageConfig
 from schemas._diagnose import DiagnoseConfig, PredictViewsConfig
 from schemas._export import ExportConfig
+from schemas._parts import PartStageConfig
 from schemas._reconstruct import PoseRefineStageConfig, ReconstructConfig
 
 
@@ -90,6 +91,11 @@ class PartMasksConfig(StageConfig):
     )
     sam2_model_config: str = Field(
         default="configs/sam2.1/sam2.1_hiera_l.yaml", description="SAM2 config name matching sam2_checkpoint."
+    )
+    parts: PartStageConfig = Field(
+        default_factory=PartStageConfig,
+        description="The geometric part finder: change tolerances, vanished-surface clustering, door and drawer "
+        "hypotheses, growth and hand masks (artitwin_core.change.PartConfig).",
     )
 
 

@@ -14,8 +14,17 @@ import numpy as np
 from artitwin_core.capture import Capture
 from artitwin_core.tracking import FramePoseConfig, estimate_frame_poses
 from schemas import CaptureArtifact, FramePoseCorrections, FramePosesConfig, MaskSequenceArtifact
-from tasks._convert import to_core
+from tasks._convert import config_map, to_core, to_core_config
 from tasks._stage import stage
+
+config_map(
+    FramePosesConfig,
+    {
+        FramePoseConfig: "keyframe_step reach mask_dilation_px model_points min_ncc min_chi2_per_dof slow_frames "
+        "min_whiteness min_depth_agreement",
+    },
+    stage_only={"enabled": "off: the stage fits nothing and stores identity corrections"},
+)
 
 
 @stage(name="frame_poses", version=1, config=FramePosesConfig, output=FramePoseCorrections)
@@ -51,17 +60,7 @@ def fit_frame_poses(
         capture,
         np.asarray(masks.part),
         np.asarray(masks.hand),
-        FramePoseConfig(
-            keyframe_step=config.keyframe_step,
-            reach=config.reach,
-            mask_dilation_px=config.mask_dilation_px,
-            model_points=config.model_points,
-            min_ncc=config.min_ncc,
-            min_chi2_per_dof=config.min_chi2_per_dof,
-            slow_frames=config.slow_frames,
-            min_whiteness=config.min_whiteness,
-            min_depth_agreement=config.min_depth_agreement,
-        ),
+        to_core_config(FramePoseConfig, config),
     )
     slow = (
         f"Their slow part (whiteness {fit.whiteness:.2f} < {config.min_whiteness:g}: they change little from frame to "
