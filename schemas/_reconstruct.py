@@ -11,6 +11,7 @@ from typing import Literal
 from pydantic import Field
 
 from schemas._base import StageConfig
+from schemas._vocab import BackendName
 
 
 class PoseRefineStageConfig(StageConfig):
@@ -63,7 +64,7 @@ class ReconstructConfig(StageConfig):
     sh_degree: int = Field(default=3, ge=0, le=3, description="Final spherical-harmonic degree.")
     max_gaussians: int = Field(default=60_000, ge=1000, description="Densification stops adding beyond this many Gaussians.")
     grad_threshold: float = Field(default=2e-4, gt=0, description="Densification threshold on the mean NDC gradient norm.")
-    backend: str = Field(default="auto", description="Rasterizer backend: auto, cpu or cuda.")
+    backend: BackendName = Field(default="auto", description="Rasterizer backend: auto, cpu or cuda (or reference, the plain torch one).")
     train_max_side: int | None = Field(
         default=None, ge=16,
         description="Train on the frames downscaled to at most this many pixels on the long side (a CPU budget: a "

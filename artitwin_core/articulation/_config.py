@@ -5,6 +5,7 @@ from __future__ import annotations
 from dataclasses import dataclass, field
 
 from artitwin_core._errors import InputError
+from artitwin_core.gaussians import BackendName
 
 
 @dataclass(frozen=True)
@@ -114,7 +115,7 @@ class ArticulationConfig:
     lr_quats: float = 1e-3
     min_opacity: float = 0.005
     background: tuple[float, float, float] = (0.0, 0.0, 0.0)
-    backend: str = "auto"
+    backend: BackendName = "auto"
     max_side: int | None = None
     seed: int = 0
 

@@ -89,3 +89,26 @@ def test_a_nested_section_converts_to_its_core_dataclass():
     assert isinstance(part, PartConfig)
     assert part.grow_frames == 3 and part.change.depth_tol_m == 0.05
     assert core_value(PartMasksConfig().parts) == PartConfig()
+
+
+def test_the_schemas_vocabularies_are_the_cores():
+    """schemas does not import the core, so it writes its Literal types again: they must agree."""
+    from typing import get_args
+
+    from artitwin_core.gaussians import BackendName
+    from artitwin_core.joints import JOINT_TYPES, Joint, JointType
+    from artitwin_core.parts import FATES, Fate
+    from schemas import _vocab
+    from schemas._artifacts import JointParams, PartFateArtifact
+    from schemas._reconstruct import ReconstructConfig
+
+    assert get_args(_vocab.JointType) == get_args(JointType) == JOINT_TYPES
+    assert get_args(_vocab.Fate) == get_args(Fate) == FATES
+    assert get_args(_vocab.BackendName) == get_args(BackendName)
+    assert JointParams.model_fields["joint_type"].annotation == _vocab.JointType
+    assert PartFateArtifact.model_fields["fate"].annotation == _vocab.Fate
+    assert Joint.__dataclass_fields__["joint_type"].type == "JointType"
+    with pytest.raises(ValueError, match="'revolute'"):
+        JointParams.model_validate({"joint_type": "hinge"})
+    with pytest.raises(ValueError, match="'cuda'"):
+        ReconstructConfig(backend="gpu")
