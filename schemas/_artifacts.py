@@ -244,7 +244,7 @@ class FramePoseCorrections(Artifact):
     pairs_used: int = Field(description="Alignments that passed the checks and were not down-weighted as outliers.")
     chi2_per_dof: float = Field(description="The fitted corrections against their standard errors, chi-square per degree of freedom.")
     fast_chi2_per_dof: float = Field(
-        description="The same for their frame-to-frame part (less a straight line in time over FramePosesConfig.slow_frames frames)."
+        description="The same for their frame-to-frame part (less a straight line in time over FramePoseStageConfig.slow_frames frames)."
     )
     whiteness: float = Field(
         description="How much the corrections change from frame to frame against how much they vary overall: about 1 for "

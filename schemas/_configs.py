@@ -1,4 +1,12 @@
-"""Stage configs: every hyperparameter a stage reads, frozen, hashed into its store key."""
+"""Stage configs: every hyperparameter a stage reads, frozen, hashed into its store key.
+
+A stage config that feeds one core config is named after it with ``Stage`` inserted
+(``TrackingStageConfig`` -> ``artitwin_core.tracking.TrackingConfig``); where each field acts in the
+core is declared beside the stage (``tasks._convert.config_map``) and tested against the core's
+defaults. The JSON keys of a pipeline config are the field names of ``PipelineConfig`` (``track``,
+``registration``, ``frame_poses``), not the class names, so renaming a class leaves stored
+configs readable.
+"""
 
 from __future__ import annotations
 
@@ -57,8 +65,9 @@ class CaptureCheckConfig(StageConfig):
 Gravity = tuple[float, float, float]
 
 
-class RegisterConfig(StageConfig):
-    """Putting the dynamic recording into the canonical frame (see artitwin_core.registration)."""
+class RegistrationStageConfig(StageConfig):
+    """Putting the dynamic recording into the canonical frame (artitwin_core.registration.RegistrationConfig
+    and register_recordings; formerly ``RegisterConfig``)."""
 
     gravity: Gravity = Field(default=(0.0, -1.0, 0.0), description="Gravity direction in both session frames (ARKit: -y).")
     max_depth_m: float = Field(default=4.5, gt=0, description="Depth beyond this is ignored, metres.")
@@ -196,8 +205,9 @@ class PoseLagStageConfig(StageConfig):
         return self
 
 
-class TrackConfig(StageConfig):
-    """Tracking points on each moving part and lifting them to 3D (see artitwin_core.tracking)."""
+class TrackingStageConfig(StageConfig):
+    """Tracking points on each moving part and lifting them to 3D (artitwin_core.tracking.TrackingConfig;
+    formerly ``TrackConfig``)."""
 
     max_tracks: int = Field(default=1000, ge=10, description="Query points per part.")
 
@@ -310,11 +320,11 @@ EFFECT_VALUES: dict[str, tuple[str, str]] = {
 }
 
 
-class FramePosesConfig(StageConfig):
+class FramePoseStageConfig(StageConfig):
     """Per-frame pose corrections of the dynamic recording, measured on its static background after part_masks
     (artitwin_core.tracking.estimate_frame_poses): recorded poses jitter by millimetres from frame to frame and the
     part's tracks carry that jitter into the joint. Applied only when the corrections stand out from their
-    standard errors."""
+    standard errors (artitwin_core.tracking.FramePoseConfig; formerly ``FramePosesConfig``)."""
 
     enabled: bool = Field(default=True, description="Fit the corrections (applied only if significant); off: poses as recorded.")
     keyframe_step: int = Field(default=5, ge=1, description="A keyframe every this many frames (and the last frame).")
@@ -362,7 +372,7 @@ class PipelineConfig(StageConfig):
         description="The depth sensor's error found from the static recording, and both recordings' depth corrected "
         "by it, when depth_scale_offset is modelled.",
     )
-    registration: RegisterConfig = Field(default_factory=RegisterConfig, description="Dynamic-to-canonical registration.")
+    registration: RegistrationStageConfig = Field(default_factory=RegistrationStageConfig, description="Dynamic-to-canonical registration.")
     part_masks: PartMasksConfig = Field(default_factory=PartMasksConfig, description="Part and hand masks.")
     pose_drift: PoseDriftConfig = Field(
         default_factory=PoseDriftConfig, description="Both recordings' pose drift, when pose_drift is modelled."
@@ -371,10 +381,10 @@ class PipelineConfig(StageConfig):
         default_factory=PoseLagStageConfig,
         description="Each recording's pose lag against its images, estimated and corrected right after ingest.",
     )
-    frame_poses: FramePosesConfig = Field(
-        default_factory=FramePosesConfig, description="Per-frame pose corrections of the dynamic recording from its static background."
+    frame_poses: FramePoseStageConfig = Field(
+        default_factory=FramePoseStageConfig, description="Per-frame pose corrections of the dynamic recording from its static background."
     )
-    track: TrackConfig = Field(default_factory=TrackConfig, description="3D point tracks on the parts.")
+    track: TrackingStageConfig = Field(default_factory=TrackingStageConfig, description="3D point tracks on the parts.")
     fit_joints: JointConfig = Field(default_factory=JointConfig, description="Joint fitting.")
     settle_parts: SettlePartsConfig = Field(
         default_factory=SettlePartsConfig, description="Which candidate parts are kept, merged or dropped (and why)."

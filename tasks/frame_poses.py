@@ -13,12 +13,12 @@ import numpy as np
 
 from artitwin_core.capture import Capture
 from artitwin_core.tracking import FramePoseConfig, estimate_frame_poses
-from schemas import CaptureArtifact, FramePoseCorrections, FramePosesConfig, MaskSequenceArtifact
+from schemas import CaptureArtifact, FramePoseCorrections, FramePoseStageConfig, MaskSequenceArtifact
 from tasks._convert import config_map, to_core, to_core_config
 from tasks._stage import stage
 
 config_map(
-    FramePosesConfig,
+    FramePoseStageConfig,
     {
         FramePoseConfig: "keyframe_step reach mask_dilation_px model_points min_ncc min_chi2_per_dof slow_frames "
         "min_whiteness min_depth_agreement",
@@ -27,9 +27,9 @@ config_map(
 )
 
 
-@stage(name="frame_poses", version=1, config=FramePosesConfig, output=FramePoseCorrections)
+@stage(name="frame_poses", version=1, config=FramePoseStageConfig, output=FramePoseCorrections)
 def fit_frame_poses(
-    dynamic: CaptureArtifact, masks: MaskSequenceArtifact, config: FramePosesConfig
+    dynamic: CaptureArtifact, masks: MaskSequenceArtifact, config: FramePoseStageConfig
 ) -> FramePoseCorrections:
     """Each frame's pose correction of ``dynamic`` (``estimate_frame_poses``), in its session frame.
 
@@ -112,9 +112,9 @@ def fit_frame_poses(
     )
 
 
-@stage(name="correct_frame_poses", version=1, config=FramePosesConfig, output=CaptureArtifact)
+@stage(name="correct_frame_poses", version=1, config=FramePoseStageConfig, output=CaptureArtifact)
 def correct_frame_poses(
-    capture: CaptureArtifact, corrections: FramePoseCorrections, config: FramePosesConfig
+    capture: CaptureArtifact, corrections: FramePoseCorrections, config: FramePoseStageConfig
 ) -> CaptureArtifact:
     """``capture`` with each frame's pose corrected (every other field as it was); corrections that
     were not ``applied`` leave the capture as it is."""

@@ -27,8 +27,8 @@ from schemas import (
     PartFateArtifact,
     PartMasksConfig,
     PartStageConfig,
-    RegisterConfig,
     Registration,
+    RegistrationStageConfig,
     ReportImage,
     StageReport,
 )
@@ -36,7 +36,7 @@ from tasks._convert import config_map, core_kwargs, to_artifact, to_core, to_cor
 from tasks._stage import stage
 
 config_map(
-    RegisterConfig,
+    RegistrationStageConfig,
     {RegistrationConfig: "max_depth_m yaw_step_deg refuse_unconvincing", register_recordings: "gravity"},
     stage_only={
         "photometric": "off: RegistrationConfig.photometric_blur_rad is () (no photometric refinement); on: its "
@@ -56,8 +56,8 @@ config_map(PartStageConfig, {PartConfig: " ".join(PartStageConfig.model_fields)}
 config_map(ChangeStageConfig, {ChangeConfig: " ".join(ChangeStageConfig.model_fields)})
 
 
-@stage(name="register", version=8, config=RegisterConfig, output=Registration)
-def register_dynamic(static: CaptureArtifact, dynamic: CaptureArtifact, config: RegisterConfig) -> Registration:
+@stage(name="register", version=8, config=RegistrationStageConfig, output=Registration)
+def register_dynamic(static: CaptureArtifact, dynamic: CaptureArtifact, config: RegistrationStageConfig) -> Registration:
     """``canonical_from_session`` of the dynamic recording: hypotheses from the poses and a yaw sweep
     about gravity, scored against what the static recording saw, gravity-keeping ICP, a photometric
     refinement against the static images, and a check that the refined placement lays the same

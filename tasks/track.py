@@ -7,16 +7,22 @@ import numpy as np
 from artitwin_core.capture import Capture
 from artitwin_core.masks import MaskSequence
 from artitwin_core.tracking import TrackingConfig, track_part_points
-from schemas import CaptureArtifact, MaskSequenceArtifact, Registration, TrackConfig, TrajectoriesArtifact
+from schemas import (
+    CaptureArtifact,
+    MaskSequenceArtifact,
+    Registration,
+    TrackingStageConfig,
+    TrajectoriesArtifact,
+)
 from tasks._convert import config_map, to_core, to_core_config
 from tasks._stage import stage
 
-config_map(TrackConfig, {TrackingConfig: {"max_tracks": "max_points"}})
+config_map(TrackingStageConfig, {TrackingConfig: {"max_tracks": "max_points"}})
 
 
-@stage(name="track", version=7, config=TrackConfig, output=TrajectoriesArtifact)
+@stage(name="track", version=7, config=TrackingStageConfig, output=TrajectoriesArtifact)
 def track_parts(
-    dynamic: CaptureArtifact, masks: MaskSequenceArtifact, registration: Registration, config: TrackConfig
+    dynamic: CaptureArtifact, masks: MaskSequenceArtifact, registration: Registration, config: TrackingStageConfig
 ) -> TrajectoriesArtifact:
     """Tracks of each labelled part, lifted to the canonical frame; ``part_ids`` says whose. A part
     whose tracking fails gets no tracks and a note; the others are tracked all the same."""

@@ -112,3 +112,17 @@ def test_the_schemas_vocabularies_are_the_cores():
         JointParams.model_validate({"joint_type": "hinge"})
     with pytest.raises(ValueError, match="'cuda'"):
         ReconstructConfig(backend="gpu")
+
+
+def test_a_pipeline_config_stored_before_the_renames_still_reads():
+    """Stored configs are keyed by PipelineConfig's field names, which the class renames
+    (RegisterConfig, TrackConfig, FramePosesConfig) left alone; part_masks.parts is new and
+    defaults to the part finder's own settings."""
+    stored = PipelineConfig().model_dump(mode="json")
+    del stored["part_masks"]["parts"]
+    stored["track"] = {"max_tracks": 500}
+    stored["registration"]["photometric"] = False
+    stored["frame_poses"]["enabled"] = False
+    cfg = PipelineConfig.model_validate(stored)
+    assert cfg.track.max_tracks == 500 and not cfg.registration.photometric and not cfg.frame_poses.enabled
+    assert cfg.part_masks == PipelineConfig().part_masks
