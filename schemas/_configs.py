@@ -15,6 +15,7 @@ from pydantic import Field, model_validator
 from schemas._articulate import ArticulateConfig
 from schemas._base import StageConfig
 from schemas._diagnose import DiagnoseConfig, PredictViewsConfig
+from schemas._effects import MODELLED, MODELLED_EFFECTS
 from schemas._export import ExportConfig
 from schemas._parts import PartStageConfig
 from schemas._reconstruct import PoseRefineStageConfig, ReconstructConfig
@@ -303,21 +304,12 @@ class JointStateConfig(StageConfig):
 
 
 # The stage whose forward model gains each catalog effect when a user enables it
-# (``PipelineConfig.with_effects``). The other catalog effects are diagnosed only.
-EFFECT_STAGES: dict[str, str] = {
-    "exposure_white_balance": "reconstruct",
-    "vignetting": "reconstruct",
-    "depth_scale_offset": "reconstruct",
-    "screw_joint": "fit_joints",
-    "pose_drift": "pose_drift",
-    "pose_lag": "pose_lag",
-    "time_offset": "joint_states",
-}
-# Effects modelled with a value the diagnosis fits (``NAME=VALUE`` in ``with_effects``): the
-# parameter it reports, and the stage config field the value sets.
-EFFECT_VALUES: dict[str, tuple[str, str]] = {
-    "time_offset": ("seconds", "rgb_time_offset_s"),
-}
+# (``PipelineConfig.with_effects``), and the effects modelled with a value the diagnosis fits
+# (``NAME=VALUE``): the parameter it reports and the stage config field the value sets. Both are
+# read off the one table, schemas._effects.MODELLED_EFFECTS; the other catalog effects are
+# diagnosed only.
+EFFECT_STAGES: dict[str, str] = {e.name: e.stage for e in MODELLED_EFFECTS}
+EFFECT_VALUES: dict[str, tuple[str, str]] = {e.name: (e.param, e.field) for e in MODELLED_EFFECTS if e.param}
 
 
 class FramePoseStageConfig(StageConfig):
@@ -411,8 +403,8 @@ class PipelineConfig(StageConfig):
         plain = []
         for entry in names:
             name, sep, raw = str(entry).partition("=")
-            if name in EFFECT_VALUES:
-                param = EFFECT_VALUES[name][0]
+            if name in MODELLED and MODELLED[name].param:
+                param = MODELLED[name].param
                 if not sep:
                     raise ValueError(
                         f"the effect {name} needs its {param}, as the diagnosis reports it: {name}=VALUE "
@@ -426,42 +418,38 @@ class PipelineConfig(StageConfig):
                 raise ValueError(f"{entry!r}: only {sorted(EFFECT_VALUES)} take a value; give {name} by name alone")
             plain.append(name)
         names = list(dict.fromkeys(plain))
-        unknown = [n for n in names if n not in EFFECT_STAGES]
+        unknown = [n for n in names if n not in MODELLED]
         if unknown:
             raise ValueError(
-                f"no stage models the effect(s) {unknown} yet; effects that can be enabled: {sorted(EFFECT_STAGES)} "
+                f"no stage models the effect(s) {unknown} yet; effects that can be enabled: {sorted(MODELLED)} "
                 "(the diagnosis still ranks the others and reports their fitted parameters)."
             )
         update: dict = {}
-        sensor = [n for n in names if EFFECT_STAGES[n] == "reconstruct"]
-        if sensor:
-            merged = sorted(set(self.reconstruct.sensor_effects) | set(sensor))
-            update["reconstruct"] = self.reconstruct.model_copy(update={"sensor_effects": merged})
-        if "screw_joint" in names:
-            update["fit_joints"] = self.fit_joints.model_copy(update={"model_screw": True})
-        if "pose_drift" in names:
-            update["pose_drift"] = self.pose_drift.model_copy(update={"model": True})
-        if "pose_lag" in names:
-            update["pose_lag"] = self.pose_lag.model_copy(update={"model": True, "correct": True})
-        for name, value in values.items():
-            stage, field = EFFECT_STAGES[name], EFFECT_VALUES[name][1]
-            current = update.get(stage, getattr(self, stage))
-            update[stage] = current.model_validate({**current.model_dump(), field: value})  # validated: bounds hold
+        for name in names:
+            effect = MODELLED[name]
+            current = update.get(effect.stage, getattr(self, effect.stage))
+            now = getattr(current, effect.field)
+            if isinstance(now, list):
+                value = sorted(set(now) | {name})
+            else:
+                value = values[name] if effect.param else True
+            # validated: bounds and cross-field rules hold
+            update[effect.stage] = current.model_validate({**current.model_dump(), effect.field: value, **effect.also})
         return self.model_copy(update=update)
 
     def enabled_effects(self) -> list[str]:
         """The catalog effects this config models (the inverse of ``with_effects``)."""
-        out = list(self.reconstruct.sensor_effects)
-        if self.fit_joints.model_screw:
-            out.append("screw_joint")
-        if self.pose_drift.model:
-            out.append("pose_drift")
-        if self.pose_lag.model:
-            out.append("pose_lag")
-        for name, (_, field) in EFFECT_VALUES.items():
-            value = getattr(getattr(self, EFFECT_STAGES[name]), field)
-            if value != 0.0:
-                out.append(f"{name}={value:g}")
+        out = []
+        for effect in MODELLED_EFFECTS:
+            value = getattr(getattr(self, effect.stage), effect.field)
+            if isinstance(value, list):
+                if effect.name in value:
+                    out.append(effect.name)
+            elif effect.param:
+                if value != 0.0:
+                    out.append(f"{effect.name}={value:g}")
+            elif value:
+                out.append(effect.name)
         return sorted(out)
 
     @classmethod

@@ -6,11 +6,10 @@ Each field maps onto a field of the frozen dataclasses in ``artitwin_core.recons
 
 from __future__ import annotations
 
-from typing import Literal
-
 from pydantic import Field
 
 from schemas._base import StageConfig
+from schemas._effects import SensorEffect
 from schemas._vocab import BackendName
 
 
@@ -71,7 +70,7 @@ class ReconstructConfig(StageConfig):
         "step's cost grows with the pixels); None = the capture's resolution. Evaluation stays at the capture's.",
     )
     seed: int = Field(default=0, description="Seed of the view order and split samples.")
-    sensor_effects: list[Literal["exposure_white_balance", "vignetting", "depth_scale_offset"]] = Field(
+    sensor_effects: list[SensorEffect] = Field(
         default_factory=list,
         description="Camera effects learned with the Gaussians (see docs/effects.md): per-frame exposure and white "
         "balance, vignetting, an affine depth error. Empty = an ideal camera. The diagnosis names the ones a "
