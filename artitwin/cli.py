@@ -17,6 +17,7 @@ from rich.table import Table
 
 from artitwin_core import ArtiTwinError
 from schemas import PipelineConfig
+from schemas._effects import MODELLED_EFFECTS
 
 app = typer.Typer(add_completion=False, no_args_is_help=True, help=__doc__)
 store_app = typer.Typer(no_args_is_help=True, help="Inspect and maintain the artifact store.")
@@ -122,6 +123,14 @@ def _run_and_report(scene: Path, out: Path, config, store: str | None, use_prefe
     _print_summary(summary, out)
 
 
+_EFFECT_HELP = (
+    "Model this physical effect (repeatable): "
+    + ", ".join(f"{e.name}={e.param.upper()}" if e.param else e.name for e in MODELLED_EFFECTS)
+    + " (with the value the diagnosis fitted). `artitwin diagnose` names the ones a run needs. Cached stages "
+    "upstream of it are reused."
+)
+
+
 @app.command()
 def run(
     scene: Annotated[Path, typer.Argument(help="Scene folder holding the static and dynamic recordings.")],
@@ -132,9 +141,7 @@ def run(
     prefect: Annotated[bool, typer.Option("--prefect/--no-prefect", help="Run as a Prefect flow (default).")] = True,
     effect: Annotated[
         list[str] | None,
-        typer.Option("--effect", help="Model this physical effect (repeatable), e.g. exposure_white_balance, "
-                     "or time_offset=SECONDS with the lag the diagnosis fitted: `artitwin diagnose` names the ones "
-                     "a run needs. Cached stages upstream of it are reused."),
+        typer.Option("--effect", help=_EFFECT_HELP),
     ] = None,
     sam2: Annotated[
         Path | None,

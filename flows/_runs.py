@@ -40,22 +40,22 @@ def rerun_effects(report: DiagnosisReport, modelled: list[str]) -> tuple[list[st
     """The ``--effect`` values that model what the diagnosis ``report`` enabled, beside those the
     run already ``modelled`` (``PipelineConfig.enabled_effects``), and the enabled effects no stage
     models. An effect that takes a value gets the one the diagnosis fitted (``time_offset=0.033``)."""
-    from schemas._configs import EFFECT_STAGES, EFFECT_VALUES
+    from schemas._effects import MODELLED
 
     wanted = sorted({e.split("/", 1)[-1] for e in report.enabled})
     have = {m.split("=", 1)[0] for m in modelled}
     flags = []
     for name in wanted:
-        if name not in EFFECT_STAGES or name in have:
+        if name not in MODELLED or name in have:
             continue
-        if name in EFFECT_VALUES:
-            param = EFFECT_VALUES[name][0]
+        param = MODELLED[name].param
+        if param:
             fitted = [f.params[param] for f in report.findings if f.name == name and param in f.params]
             if not fitted:
                 continue
             name = f"{name}={float(fitted[0]):.4g}"
         flags.append(name)
-    cannot = [e for e in wanted if e not in EFFECT_STAGES]
+    cannot = [e for e in wanted if e not in MODELLED]
     return flags, cannot
 
 

@@ -34,7 +34,7 @@ from schemas._base import (
 from schemas._configs import (
     CaptureCheckConfig,
     DepthCalibrationConfig,
-    FramePosesConfig,
+    FramePoseStageConfig,
     IngestConfig,
     JointConfig,
     JointStateConfig,
@@ -42,9 +42,9 @@ from schemas._configs import (
     PipelineConfig,
     PoseDriftConfig,
     PoseLagStageConfig,
-    RegisterConfig,
+    RegistrationStageConfig,
     SettlePartsConfig,
-    TrackConfig,
+    TrackingStageConfig,
 )
 from schemas._diagnose import (
     DiagnoseConfig,
@@ -54,6 +54,7 @@ from schemas._diagnose import (
     ViewPrediction,
 )
 from schemas._export import ExportBundle, ExportConfig, ExportFile
+from schemas._parts import ChangeStageConfig, PartStageConfig
 from schemas._reconstruct import PoseRefineStageConfig, ReconstructConfig
 
 __all__ = [
@@ -64,6 +65,7 @@ __all__ = [
     "CameraPoses",
     "CaptureArtifact",
     "CaptureCheckConfig",
+    "ChangeStageConfig",
     "DiagnoseConfig",
     "DiagnosisReport",
     "EffectFinding",
@@ -71,7 +73,7 @@ __all__ = [
     "ExportConfig",
     "ExportFile",
     "FramePoseCorrections",
-    "FramePosesConfig",
+    "FramePoseStageConfig",
     "GaussianCheckpoint",
     "IngestConfig",
     "JointConfig",
@@ -80,11 +82,12 @@ __all__ = [
     "PoseLagStageConfig",
     "JointStateConfig",
     "PartMasksConfig",
+    "PartStageConfig",
     "PoseRefineStageConfig",
     "PredictViewsConfig",
     "ReconstructConfig",
-    "RegisterConfig",
-    "TrackConfig",
+    "RegistrationStageConfig",
+    "TrackingStageConfig",
     "JointParams",
     "JointSet",
     "MaskSequenceArtifact",

@@ -9,6 +9,7 @@ from __future__ import annotations
 from pydantic import Field
 
 from schemas._base import StageConfig
+from schemas._vocab import BackendName
 
 
 class ArticulateConfig(StageConfig):
@@ -72,7 +73,7 @@ class ArticulateConfig(StageConfig):
     lr_means: float = Field(
         default=1.6e-4, gt=0, description="Position learning rate, times the scene extent (metres)."
     )
-    backend: str = Field(default="auto", description="Rasterizer backend: auto, cpu or cuda.")
+    backend: BackendName = Field(default="auto", description="Rasterizer backend: auto, cpu or cuda (or reference, the plain torch one).")
     train_max_side: int | None = Field(
         default=None, ge=16,
         description="Train on both recordings downscaled to at most this many pixels on the long side, the masks "

@@ -10,6 +10,7 @@ from __future__ import annotations
 from pydantic import Field
 
 from schemas._base import Array, Artifact
+from schemas._vocab import Fate, JointType
 
 # ----------------------------------------------------------------------------------------------
 # Captures and poses
@@ -243,7 +244,7 @@ class FramePoseCorrections(Artifact):
     pairs_used: int = Field(description="Alignments that passed the checks and were not down-weighted as outliers.")
     chi2_per_dof: float = Field(description="The fitted corrections against their standard errors, chi-square per degree of freedom.")
     fast_chi2_per_dof: float = Field(
-        description="The same for their frame-to-frame part (less a straight line in time over FramePosesConfig.slow_frames frames)."
+        description="The same for their frame-to-frame part (less a straight line in time over FramePoseStageConfig.slow_frames frames)."
     )
     whiteness: float = Field(
         description="How much the corrections change from frame to frame against how much they vary overall: about 1 for "
@@ -275,7 +276,7 @@ class PartFateArtifact(Artifact):
     schema_version = 1
 
     candidate: int = Field(description="The candidate's index in the part finder's list (onset order).")
-    fate: str = Field(description="'kept' (a part with a joint of its own), 'merged' (into the part whose motion explains it) or 'dropped'.")
+    fate: Fate = Field(description="'kept' (a part with a joint of its own), 'merged' (into the part whose motion explains it) or 'dropped'.")
     stage: str = Field(description="The stage that decided: part_masks, fit_joints or settle_parts.")
     reason: str = Field(default="", description="Why, in words with the numbers that decided; empty when kept.")
     into: int | None = Field(default=None, description="Merged: the candidate it joined; else None.")
@@ -337,7 +338,7 @@ class JointParams(Artifact):
     kind = "joint"
     schema_version = 2
 
-    joint_type: str = Field(description="'revolute', 'prismatic', 'screw' or 'fixed'.")
+    joint_type: JointType = Field(description="'revolute', 'prismatic', 'screw' or 'fixed'.")
     axis: Array("float64", "3") = Field(description="Unit axis direction in the canonical frame, [3].")
     pivot: Array("float64", "3") = Field(description="A point on the axis line in the canonical frame, metres, [3].")
     q: Array("float64", "T") = Field(

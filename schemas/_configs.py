@@ -1,4 +1,12 @@
-"""Stage configs: every hyperparameter a stage reads, frozen, hashed into its store key."""
+"""Stage configs: every hyperparameter a stage reads, frozen, hashed into its store key.
+
+A stage config that feeds one core config is named after it with ``Stage`` inserted
+(``TrackingStageConfig`` -> ``artitwin_core.tracking.TrackingConfig``); where each field acts in the
+core is declared beside the stage (``tasks._convert.config_map``) and tested against the core's
+defaults. The JSON keys of a pipeline config are the field names of ``PipelineConfig`` (``track``,
+``registration``, ``frame_poses``), not the class names, so renaming a class leaves stored
+configs readable.
+"""
 
 from __future__ import annotations
 
@@ -7,7 +15,9 @@ from pydantic import Field, model_validator
 from schemas._articulate import ArticulateConfig
 from schemas._base import StageConfig
 from schemas._diagnose import DiagnoseConfig, PredictViewsConfig
+from schemas._effects import MODELLED, MODELLED_EFFECTS
 from schemas._export import ExportConfig
+from schemas._parts import PartStageConfig
 from schemas._reconstruct import PoseRefineStageConfig, ReconstructConfig
 
 
@@ -56,8 +66,9 @@ class CaptureCheckConfig(StageConfig):
 Gravity = tuple[float, float, float]
 
 
-class RegisterConfig(StageConfig):
-    """Putting the dynamic recording into the canonical frame (see artitwin_core.registration)."""
+class RegistrationStageConfig(StageConfig):
+    """Putting the dynamic recording into the canonical frame (artitwin_core.registration.RegistrationConfig
+    and register_recordings; formerly ``RegisterConfig``)."""
 
     gravity: Gravity = Field(default=(0.0, -1.0, 0.0), description="Gravity direction in both session frames (ARKit: -y).")
     max_depth_m: float = Field(default=4.5, gt=0, description="Depth beyond this is ignored, metres.")
@@ -90,6 +101,11 @@ class PartMasksConfig(StageConfig):
     )
     sam2_model_config: str = Field(
         default="configs/sam2.1/sam2.1_hiera_l.yaml", description="SAM2 config name matching sam2_checkpoint."
+    )
+    parts: PartStageConfig = Field(
+        default_factory=PartStageConfig,
+        description="The geometric part finder: change tolerances, vanished-surface clustering, door and drawer "
+        "hypotheses, growth and hand masks (artitwin_core.change.PartConfig).",
     )
 
 
@@ -190,8 +206,9 @@ class PoseLagStageConfig(StageConfig):
         return self
 
 
-class TrackConfig(StageConfig):
-    """Tracking points on each moving part and lifting them to 3D (see artitwin_core.tracking)."""
+class TrackingStageConfig(StageConfig):
+    """Tracking points on each moving part and lifting them to 3D (artitwin_core.tracking.TrackingConfig;
+    formerly ``TrackConfig``)."""
 
     max_tracks: int = Field(default=1000, ge=10, description="Query points per part.")
 
@@ -287,28 +304,19 @@ class JointStateConfig(StageConfig):
 
 
 # The stage whose forward model gains each catalog effect when a user enables it
-# (``PipelineConfig.with_effects``). The other catalog effects are diagnosed only.
-EFFECT_STAGES: dict[str, str] = {
-    "exposure_white_balance": "reconstruct",
-    "vignetting": "reconstruct",
-    "depth_scale_offset": "reconstruct",
-    "screw_joint": "fit_joints",
-    "pose_drift": "pose_drift",
-    "pose_lag": "pose_lag",
-    "time_offset": "joint_states",
-}
-# Effects modelled with a value the diagnosis fits (``NAME=VALUE`` in ``with_effects``): the
-# parameter it reports, and the stage config field the value sets.
-EFFECT_VALUES: dict[str, tuple[str, str]] = {
-    "time_offset": ("seconds", "rgb_time_offset_s"),
-}
+# (``PipelineConfig.with_effects``), and the effects modelled with a value the diagnosis fits
+# (``NAME=VALUE``): the parameter it reports and the stage config field the value sets. Both are
+# read off the one table, schemas._effects.MODELLED_EFFECTS; the other catalog effects are
+# diagnosed only.
+EFFECT_STAGES: dict[str, str] = {e.name: e.stage for e in MODELLED_EFFECTS}
+EFFECT_VALUES: dict[str, tuple[str, str]] = {e.name: (e.param, e.field) for e in MODELLED_EFFECTS if e.param}
 
 
-class FramePosesConfig(StageConfig):
+class FramePoseStageConfig(StageConfig):
     """Per-frame pose corrections of the dynamic recording, measured on its static background after part_masks
     (artitwin_core.tracking.estimate_frame_poses): recorded poses jitter by millimetres from frame to frame and the
     part's tracks carry that jitter into the joint. Applied only when the corrections stand out from their
-    standard errors."""
+    standard errors (artitwin_core.tracking.FramePoseConfig; formerly ``FramePosesConfig``)."""
 
     enabled: bool = Field(default=True, description="Fit the corrections (applied only if significant); off: poses as recorded.")
     keyframe_step: int = Field(default=5, ge=1, description="A keyframe every this many frames (and the last frame).")
@@ -356,7 +364,7 @@ class PipelineConfig(StageConfig):
         description="The depth sensor's error found from the static recording, and both recordings' depth corrected "
         "by it, when depth_scale_offset is modelled.",
     )
-    registration: RegisterConfig = Field(default_factory=RegisterConfig, description="Dynamic-to-canonical registration.")
+    registration: RegistrationStageConfig = Field(default_factory=RegistrationStageConfig, description="Dynamic-to-canonical registration.")
     part_masks: PartMasksConfig = Field(default_factory=PartMasksConfig, description="Part and hand masks.")
     pose_drift: PoseDriftConfig = Field(
         default_factory=PoseDriftConfig, description="Both recordings' pose drift, when pose_drift is modelled."
@@ -365,10 +373,10 @@ class PipelineConfig(StageConfig):
         default_factory=PoseLagStageConfig,
         description="Each recording's pose lag against its images, estimated and corrected right after ingest.",
     )
-    frame_poses: FramePosesConfig = Field(
-        default_factory=FramePosesConfig, description="Per-frame pose corrections of the dynamic recording from its static background."
+    frame_poses: FramePoseStageConfig = Field(
+        default_factory=FramePoseStageConfig, description="Per-frame pose corrections of the dynamic recording from its static background."
     )
-    track: TrackConfig = Field(default_factory=TrackConfig, description="3D point tracks on the parts.")
+    track: TrackingStageConfig = Field(default_factory=TrackingStageConfig, description="3D point tracks on the parts.")
     fit_joints: JointConfig = Field(default_factory=JointConfig, description="Joint fitting.")
     settle_parts: SettlePartsConfig = Field(
         default_factory=SettlePartsConfig, description="Which candidate parts are kept, merged or dropped (and why)."
@@ -395,8 +403,8 @@ class PipelineConfig(StageConfig):
         plain = []
         for entry in names:
             name, sep, raw = str(entry).partition("=")
-            if name in EFFECT_VALUES:
-                param = EFFECT_VALUES[name][0]
+            if name in MODELLED and MODELLED[name].param:
+                param = MODELLED[name].param
                 if not sep:
                     raise ValueError(
                         f"the effect {name} needs its {param}, as the diagnosis reports it: {name}=VALUE "
@@ -410,42 +418,38 @@ class PipelineConfig(StageConfig):
                 raise ValueError(f"{entry!r}: only {sorted(EFFECT_VALUES)} take a value; give {name} by name alone")
             plain.append(name)
         names = list(dict.fromkeys(plain))
-        unknown = [n for n in names if n not in EFFECT_STAGES]
+        unknown = [n for n in names if n not in MODELLED]
         if unknown:
             raise ValueError(
-                f"no stage models the effect(s) {unknown} yet; effects that can be enabled: {sorted(EFFECT_STAGES)} "
+                f"no stage models the effect(s) {unknown} yet; effects that can be enabled: {sorted(MODELLED)} "
                 "(the diagnosis still ranks the others and reports their fitted parameters)."
             )
         update: dict = {}
-        sensor = [n for n in names if EFFECT_STAGES[n] == "reconstruct"]
-        if sensor:
-            merged = sorted(set(self.reconstruct.sensor_effects) | set(sensor))
-            update["reconstruct"] = self.reconstruct.model_copy(update={"sensor_effects": merged})
-        if "screw_joint" in names:
-            update["fit_joints"] = self.fit_joints.model_copy(update={"model_screw": True})
-        if "pose_drift" in names:
-            update["pose_drift"] = self.pose_drift.model_copy(update={"model": True})
-        if "pose_lag" in names:
-            update["pose_lag"] = self.pose_lag.model_copy(update={"model": True, "correct": True})
-        for name, value in values.items():
-            stage, field = EFFECT_STAGES[name], EFFECT_VALUES[name][1]
-            current = update.get(stage, getattr(self, stage))
-            update[stage] = current.model_validate({**current.model_dump(), field: value})  # validated: bounds hold
+        for name in names:
+            effect = MODELLED[name]
+            current = update.get(effect.stage, getattr(self, effect.stage))
+            now = getattr(current, effect.field)
+            if isinstance(now, list):
+                value = sorted(set(now) | {name})
+            else:
+                value = values[name] if effect.param else True
+            # validated: bounds and cross-field rules hold
+            update[effect.stage] = current.model_validate({**current.model_dump(), effect.field: value, **effect.also})
         return self.model_copy(update=update)
 
     def enabled_effects(self) -> list[str]:
         """The catalog effects this config models (the inverse of ``with_effects``)."""
-        out = list(self.reconstruct.sensor_effects)
-        if self.fit_joints.model_screw:
-            out.append("screw_joint")
-        if self.pose_drift.model:
-            out.append("pose_drift")
-        if self.pose_lag.model:
-            out.append("pose_lag")
-        for name, (_, field) in EFFECT_VALUES.items():
-            value = getattr(getattr(self, EFFECT_STAGES[name]), field)
-            if value != 0.0:
-                out.append(f"{name}={value:g}")
+        out = []
+        for effect in MODELLED_EFFECTS:
+            value = getattr(getattr(self, effect.stage), effect.field)
+            if isinstance(value, list):
+                if effect.name in value:
+                    out.append(effect.name)
+            elif effect.param:
+                if value != 0.0:
+                    out.append(f"{effect.name}={value:g}")
+            elif value:
+                out.append(effect.name)
         return sorted(out)
 
     @classmethod

@@ -14,12 +14,13 @@ from pydantic import Field
 
 from schemas._artifacts import ReportImage
 from schemas._base import Array, Artifact, StageConfig
+from schemas._vocab import BackendName
 
 
 class PredictViewsConfig(StageConfig):
     """Rendering the canonical Gaussians into every frame of the static recording."""
 
-    backend: str = Field(default="auto", description="Rasterizer backend: auto, cpu or cuda.")
+    backend: BackendName = Field(default="auto", description="Rasterizer backend: auto, cpu or cuda (or reference, the plain torch one).")
     min_alpha: float = Field(
         default=0.5, ge=0, le=1, description="Pixels whose rendered opacity is below this are not compared."
     )

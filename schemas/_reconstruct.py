@@ -6,11 +6,11 @@ Each field maps onto a field of the frozen dataclasses in ``artitwin_core.recons
 
 from __future__ import annotations
 
-from typing import Literal
-
 from pydantic import Field
 
 from schemas._base import StageConfig
+from schemas._effects import SensorEffect
+from schemas._vocab import BackendName
 
 
 class PoseRefineStageConfig(StageConfig):
@@ -63,14 +63,14 @@ class ReconstructConfig(StageConfig):
     sh_degree: int = Field(default=3, ge=0, le=3, description="Final spherical-harmonic degree.")
     max_gaussians: int = Field(default=60_000, ge=1000, description="Densification stops adding beyond this many Gaussians.")
     grad_threshold: float = Field(default=2e-4, gt=0, description="Densification threshold on the mean NDC gradient norm.")
-    backend: str = Field(default="auto", description="Rasterizer backend: auto, cpu or cuda.")
+    backend: BackendName = Field(default="auto", description="Rasterizer backend: auto, cpu or cuda (or reference, the plain torch one).")
     train_max_side: int | None = Field(
         default=None, ge=16,
         description="Train on the frames downscaled to at most this many pixels on the long side (a CPU budget: a "
         "step's cost grows with the pixels); None = the capture's resolution. Evaluation stays at the capture's.",
     )
     seed: int = Field(default=0, description="Seed of the view order and split samples.")
-    sensor_effects: list[Literal["exposure_white_balance", "vignetting", "depth_scale_offset"]] = Field(
+    sensor_effects: list[SensorEffect] = Field(
         default_factory=list,
         description="Camera effects learned with the Gaussians (see docs/effects.md): per-frame exposure and white "
         "balance, vignetting, an affine depth error. Empty = an ideal camera. The diagnosis names the ones a "

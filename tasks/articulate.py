@@ -11,7 +11,6 @@ import numpy as np
 from artitwin_core._errors import InputError
 from artitwin_core.articulation import (
     ArticulationConfig,
-    PartitionConfig,
     articulate,
     dynamic_views,
     evaluate_psnr,
@@ -32,31 +31,26 @@ from schemas import (
     StageReport,
 )
 from schemas._articulate import ArticulateConfig
-from tasks._convert import to_artifact, to_core
+from tasks._convert import config_map, to_artifact, to_core, to_core_config
 from tasks._stage import stage
+
+config_map(
+    ArticulateConfig,
+    {
+        ArticulationConfig: {
+            **{n: n for n in "holdout_every phase1_steps phase2_steps lambda_dssim depth_weight region_dilate_px "
+               "dynamic_weight seed_depth_tol_m seed_max_points seed_background seed_background_max_points "
+               "appearance_knots lr_means backend seed".split()},
+            "partition_depth_tol_m": "partition.depth_tol_m",
+            "train_max_side": "max_side",
+        },
+    },
+)
 
 
 def core_config(config: ArticulateConfig) -> ArticulationConfig:
     """The core dataclass for a stage config."""
-    return ArticulationConfig(
-        partition=PartitionConfig(depth_tol_m=config.partition_depth_tol_m),
-        holdout_every=config.holdout_every,
-        phase1_steps=config.phase1_steps,
-        phase2_steps=config.phase2_steps,
-        lambda_dssim=config.lambda_dssim,
-        depth_weight=config.depth_weight,
-        region_dilate_px=config.region_dilate_px,
-        dynamic_weight=config.dynamic_weight,
-        seed_depth_tol_m=config.seed_depth_tol_m,
-        seed_max_points=config.seed_max_points,
-        seed_background=config.seed_background,
-        seed_background_max_points=config.seed_background_max_points,
-        appearance_knots=config.appearance_knots,
-        lr_means=config.lr_means,
-        backend=config.backend,
-        max_side=config.train_max_side,
-        seed=config.seed,
-    )
+    return to_core_config(ArticulationConfig, config)
 
 
 def core_joints(joints: JointSet) -> list[Joint]:

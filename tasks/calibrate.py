@@ -11,8 +11,18 @@ from __future__ import annotations
 from artitwin_core.capture import Capture, calibrate_depth, estimate_depth_calibration
 from artitwin_core.capture import DepthCalibrationConfig as CoreConfig
 from schemas import CaptureArtifact, DepthCalibrationConfig, DepthCalibrationResult
-from tasks._convert import to_core
+from tasks._convert import config_map, to_core, to_core_config
 from tasks._stage import stage
+
+config_map(
+    DepthCalibrationConfig,
+    {CoreConfig: "frame_gaps max_depth_m min_confidence"},
+    stage_only={
+        "max_scale_error": "a plausibility gate on the estimate, applied by the stage",
+        "max_offset_m": "a plausibility gate on the estimate, applied by the stage",
+        "max_error_se_m": "a significance gate on the estimate, applied by the stage",
+    },
+)
 
 
 @stage(name="depth_calibration", version=1, config=DepthCalibrationConfig, output=DepthCalibrationResult)
@@ -31,9 +41,7 @@ def estimate_capture_depth_calibration(capture: CaptureArtifact, config: DepthCa
     """
     cal = estimate_depth_calibration(
         to_core(Capture, capture),
-        config=CoreConfig(
-            frame_gaps=tuple(config.frame_gaps), max_depth_m=config.max_depth_m, min_confidence=config.min_confidence
-        ),
+        config=to_core_config(CoreConfig, config),
     )
     where = capture.source_path or "the static recording"
     note = ""

@@ -22,7 +22,7 @@ from PIL import Image
 
 from artitwin_core import InputError, progress
 from artitwin_core.articulation import TwinRenderer
-from artitwin_core.capture import Capture, downscale_rgb, estimate_depth_calibration
+from artitwin_core.capture import Capture, DriftSignificance, downscale_rgb, estimate_depth_calibration
 from artitwin_core.capture import DepthCalibrationConfig as CoreCalibrationConfig
 from artitwin_core.diagnostics import DiagnoseConfig as CoreDiagnoseConfig
 from artitwin_core.diagnostics import (
@@ -60,9 +60,37 @@ from schemas._diagnose import (
     PredictViewsConfig,
     ViewPrediction,
 )
-from tasks._convert import to_core
+from tasks._convert import config_map, core_kwargs, to_core, to_core_config
 from tasks._stage import stage
 from tasks.reconstruct import sensor_model
+
+config_map(
+    PredictViewsConfig,
+    {ModelRenderer: "backend", downscale_rgb: "max_side"},
+    stage_only={
+        "min_alpha": "the stage leaves pixels rendered fainter than this out of the prediction",
+        "max_frames": "which frames the stage predicts (prediction_frames)",
+        "run_frames": "which frames the stage predicts (prediction_frames)",
+    },
+)
+config_map(
+    DiagnoseConfig,
+    {
+        CoreDiagnoseConfig: "min_explained min_gain_over_floor structure_ratio max_rounds heldout_every "
+        "min_gain_over_null min_world_fixed",
+        make_residual_data: {
+            "depth_sigma_a_m": "depth_sigma[0]", "depth_sigma_b_per_m": "depth_sigma[1]",
+            "min_confidence": "min_confidence", "track_noise_m": "track_noise_m",
+        },
+    },
+    stage_only={
+        "effects": "which registered effects the stage tests (the effect registry, not a config)",
+        "effect_modules": "user effect plugins the stage loads (discover_effects)",
+        "min_tracks_count": "the stage leaves joints with fewer tracks undiagnosed",
+        "self_consistency": "whether the stage also tests the static recording against itself",
+        "min_depth_error_m": "the self-consistency test's gate on the depth error, applied by the stage",
+    },
+)
 
 STATIC_SCOPE = "static recording"
 DYNAMIC_SCOPE = "dynamic recording"
@@ -236,10 +264,10 @@ def _sensor_data(capture: CaptureArtifact, prediction: ViewPrediction, config: D
     return make_residual_data(
         rgb_pred=prediction.rgb, rgb_meas=capture.rgb, rgb_intrinsics=capture.rgb_intrinsics,
         rgb_mask=prediction.coverage, depth_pred=prediction.depth, depth_meas=capture.depth,
-        depth_confidence=capture.confidence, depth_sigma=(config.depth_sigma_a_m, config.depth_sigma_b_per_m),
-        min_confidence=config.min_confidence, timestamps=capture.timestamps,
+        depth_confidence=capture.confidence, timestamps=capture.timestamps,
         depth_intrinsics=capture.depth_intrinsics,
         world_from_camera=capture.world_from_camera if prediction.world_from_camera is None else prediction.world_from_camera,
+        **core_kwargs(make_residual_data, config),
     )
 
 
@@ -287,16 +315,12 @@ def _track_data(joints: JointSet, trajectories: TrajectoriesArtifact, config: Di
         obs, valid = trajectories.points_in_world[:, keep], trajectories.valid[:, keep]
         model = track_model_from_joint(joint, obs, valid)
         out.append((jp.name, make_residual_data(tracks=model, tracks_obs=obs, tracks_valid=valid,
-                                                track_noise_m=config.track_noise_m)))
+                                                **core_kwargs(make_residual_data, config))))
     return out
 
 
 def _core_config(config: DiagnoseConfig) -> CoreDiagnoseConfig:
-    return CoreDiagnoseConfig(
-        min_explained=config.min_explained, min_gain_over_floor=config.min_gain_over_floor,
-        structure_ratio=config.structure_ratio, max_rounds=config.max_rounds, heldout_every=config.heldout_every,
-        min_gain_over_null=config.min_gain_over_null, min_world_fixed=config.min_world_fixed,
-    )
+    return to_core_config(CoreDiagnoseConfig, config)
 
 
 def _effects(config: DiagnoseConfig) -> dict:
@@ -397,8 +421,8 @@ def self_consistency(capture: CaptureArtifact, config: DiagnoseConfig) -> tuple[
         joint = estimate_depth_calibration(cap, config=CoreCalibrationConfig(pose_drift=True))
     except InputError as e:
         return [], [f"{STATIC_SCOPE}: its frames' self-consistency could not be tested ({e})"]
-    gate, sig = PoseDriftConfig(), joint.drift_significance
-    why = sig.why_not(gate.min_displacement_m, gate.min_z_score, gate.max_half_disagreement)
+    sig = joint.drift_significance
+    why = sig.why_not(**core_kwargs(DriftSignificance.why_not, PoseDriftConfig()))
     poses = joint.drift.apply(cap.world_from_camera, cap.timestamps) if not why else cap.world_from_camera
     plain_recorded = estimate_depth_calibration(cap)
     depth = estimate_depth_calibration(cap, world_from_camera=poses) if not why else plain_recorded

@@ -16,12 +16,26 @@ from artitwin_core.capture import DepthCalibrationConfig as CoreCalibrationConfi
 from artitwin_core.change import build_canonical_tsdf
 from artitwin_core.registration import SessionDriftConfig, estimate_session_drift
 from schemas import CaptureArtifact, MaskSequenceArtifact, PoseDriftConfig, PoseDriftResult, Registration
-from tasks._convert import to_core
+from tasks._convert import config_map, core_kwargs, to_core, to_core_config
 from tasks._stage import stage
+
+config_map(
+    PoseDriftConfig,
+    {
+        CoreCalibrationConfig: "gravity",
+        SessionDriftConfig: "gravity mask_dilation_px max_association_m",
+        build_canonical_tsdf: {"tsdf_voxel_m": "voxel_m", "tsdf_max_frames": "max_frames"},
+        DriftSignificance.why_not: {
+            "min_displacement_m": "min_displacement_m", "min_z_score": "min_z",
+            "max_half_disagreement": "max_half_disagreement",
+        },
+    },
+    stage_only={"model": "the effect pose_drift: whether the flow runs the drift stages at all"},
+)
 
 
 def _result(recording: str, drift: PoseDrift, sig: DriftSignificance, residual_m: float, method: str, config: PoseDriftConfig) -> PoseDriftResult:
-    why = sig.why_not(config.min_displacement_m, config.min_z_score, config.max_half_disagreement)
+    why = sig.why_not(**core_kwargs(DriftSignificance.why_not, config))
     return PoseDriftResult(
         recording=recording, pivot=drift.pivot, t0_s=drift.t0_s, rot0_rad=drift.rot0_rad, trans0_m=drift.trans0_m,
         rot_rate_rad_per_s=drift.rot_rate_rad_per_s, trans_rate_m_per_s=drift.trans_rate_m_per_s,
@@ -45,7 +59,7 @@ def fit_static_drift(capture: CaptureArtifact, config: PoseDriftConfig) -> PoseD
     """
     cal = estimate_depth_calibration(
         to_core(Capture, capture),
-        config=CoreCalibrationConfig(pose_drift=True, gravity=tuple(config.gravity)),
+        config=to_core_config(CoreCalibrationConfig, config, pose_drift=True),
     )
     return _result("static", cal.drift, cal.drift_significance, cal.residual_m, "depth-consistency+sift-reprojection", config)
 
@@ -64,13 +78,11 @@ def fit_session_drift(
         InputError: masks that do not match the recording, or too little unmasked evidence.
     """
     static_capture = to_core(Capture, static)
-    mesh = build_canonical_tsdf(static_capture, voxel_m=config.tsdf_voxel_m, max_frames=config.tsdf_max_frames)
+    mesh = build_canonical_tsdf(static_capture, **core_kwargs(build_canonical_tsdf, config))
     fit = estimate_session_drift(
         to_core(Capture, dynamic), registration.canonical_from_session, mesh, np.asarray(masks.part), np.asarray(masks.hand),
         static_capture,
-        SessionDriftConfig(
-            gravity=tuple(config.gravity), mask_dilation_px=config.mask_dilation_px, max_association_m=config.max_association_m
-        ),
+        to_core_config(SessionDriftConfig, config),
     )
     return _result("dynamic", fit.drift, fit.significance, fit.residual_m, "projective-depth-to-canonical+sift", config)
 

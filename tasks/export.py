@@ -47,8 +47,36 @@ from schemas import (
     Registration,
 )
 from schemas._export import ExportBundle, ExportConfig, ExportFile
-from tasks._convert import to_core
+from tasks._convert import config_map, to_core
 from tasks._stage import stage
+
+# The export calls many core functions, one setting each (or two: the parts' and the base's), so
+# it passes its fields by hand; the map says where each acts and the test of config truth checks
+# the defaults.
+config_map(
+    ExportConfig,
+    {
+        fuse_part_mesh: {"part_voxel_m": "voxel_m", "depth_max_m": "depth_max_m", "mask_erode_px": "erode_px",
+                         "part_max_faces": "max_faces"},
+        fuse_base_mesh: {"base_part_margin_m": "margin_m", "base_voxel_m": "voxel_m", "base_max_faces": "max_faces"},
+        convex_decomposition: {"collision_method": "method", "max_collision_pieces": "max_parts",
+                               "coacd_threshold": "threshold", "seed": "seed"},
+        mesh_inertial: "density_kg_m3",
+        export_urdf: "effort velocity",
+        export_mjcf: "damping",
+        export_usd: {"usd_payload_min_bytes": "payload_min_bytes"},
+    },
+    stage_only={
+        "name": "the model's name, given to every writer",
+        "base_crop_margin_m": "the stage crops the base to the parts' box grown by this (fuse_base_mesh's crop_box)",
+        "base_collision_method": "convex_decomposition's method, for the base",
+        "base_max_collision_pieces": "convex_decomposition's max_parts, for the base",
+        "formats": "which writers the stage calls",
+        "splats_in_link_frames": "whether the stage shifts the part splats into their link frames",
+        "check_simulators": "whether the stage runs the simulator check",
+        "sim_tolerance_mm": "the simulator check's tolerance, applied by the stage",
+    },
+)
 
 SIM_CHECK_FILE = "sim_check.json"
 SPLAT_DIR = "splats"

@@ -13,14 +13,23 @@ import numpy as np
 
 from artitwin_core.capture import Capture
 from artitwin_core.tracking import FramePoseConfig, estimate_frame_poses
-from schemas import CaptureArtifact, FramePoseCorrections, FramePosesConfig, MaskSequenceArtifact
-from tasks._convert import to_core
+from schemas import CaptureArtifact, FramePoseCorrections, FramePoseStageConfig, MaskSequenceArtifact
+from tasks._convert import config_map, to_core, to_core_config
 from tasks._stage import stage
 
+config_map(
+    FramePoseStageConfig,
+    {
+        FramePoseConfig: "keyframe_step reach mask_dilation_px model_points min_ncc min_chi2_per_dof slow_frames "
+        "min_whiteness min_depth_agreement",
+    },
+    stage_only={"enabled": "off: the stage fits nothing and stores identity corrections"},
+)
 
-@stage(name="frame_poses", version=1, config=FramePosesConfig, output=FramePoseCorrections)
+
+@stage(name="frame_poses", version=1, config=FramePoseStageConfig, output=FramePoseCorrections)
 def fit_frame_poses(
-    dynamic: CaptureArtifact, masks: MaskSequenceArtifact, config: FramePosesConfig
+    dynamic: CaptureArtifact, masks: MaskSequenceArtifact, config: FramePoseStageConfig
 ) -> FramePoseCorrections:
     """Each frame's pose correction of ``dynamic`` (``estimate_frame_poses``), in its session frame.
 
@@ -51,17 +60,7 @@ def fit_frame_poses(
         capture,
         np.asarray(masks.part),
         np.asarray(masks.hand),
-        FramePoseConfig(
-            keyframe_step=config.keyframe_step,
-            reach=config.reach,
-            mask_dilation_px=config.mask_dilation_px,
-            model_points=config.model_points,
-            min_ncc=config.min_ncc,
-            min_chi2_per_dof=config.min_chi2_per_dof,
-            slow_frames=config.slow_frames,
-            min_whiteness=config.min_whiteness,
-            min_depth_agreement=config.min_depth_agreement,
-        ),
+        to_core_config(FramePoseConfig, config),
     )
     slow = (
         f"Their slow part (whiteness {fit.whiteness:.2f} < {config.min_whiteness:g}: they change little from frame to "
@@ -113,9 +112,9 @@ def fit_frame_poses(
     )
 
 
-@stage(name="correct_frame_poses", version=1, config=FramePosesConfig, output=CaptureArtifact)
+@stage(name="correct_frame_poses", version=1, config=FramePoseStageConfig, output=CaptureArtifact)
 def correct_frame_poses(
-    capture: CaptureArtifact, corrections: FramePoseCorrections, config: FramePosesConfig
+    capture: CaptureArtifact, corrections: FramePoseCorrections, config: FramePoseStageConfig
 ) -> CaptureArtifact:
     """``capture`` with each frame's pose corrected (every other field as it was); corrections that
     were not ``applied`` leave the capture as it is."""

@@ -11,18 +11,35 @@ import numpy as np
 from artitwin_core.capture import Capture, KeyframeConfig, ReadOptions, read_capture, select_keyframes
 from artitwin_core.diagnostics import capture_quality
 from schemas import CaptureArtifact, CaptureCheckConfig, IngestConfig, StageReport
-from tasks._convert import to_artifact, to_core
+from tasks._convert import config_map, to_artifact, to_core, to_core_config
 from tasks._stage import stage
 
 log = logging.getLogger(__name__)
 
+config_map(
+    IngestConfig,
+    {
+        ReadOptions: "stride max_frames rgb_max_width rgb_max_side",
+        KeyframeConfig: {
+            "keyframes_max": "max_frames", "keyframe_view_step": "view_step",
+            "keyframe_change_step": "change_step", "keyframe_max_gap_s": "max_gap_s",
+        },
+    },
+    differs={"keyframes_max": "None (the default) selects no keyframes; KeyframeConfig needs a number when it runs."},
+)
+config_map(
+    CaptureCheckConfig,
+    {},
+    stage_only={
+        "min_valid_depth_frac": "a warning threshold on capture_quality's result, applied by the stage",
+        "max_speed_m_s": "a warning threshold on capture_quality's result, applied by the stage",
+    },
+)
+
 
 def keyframe_config(config: IngestConfig) -> KeyframeConfig:
     """The core dataclass for a stage config's keyframe fields (``keyframes_max`` set)."""
-    return KeyframeConfig(
-        max_frames=int(config.keyframes_max), view_step=config.keyframe_view_step,
-        change_step=config.keyframe_change_step, max_gap_s=config.keyframe_max_gap_s,
-    )
+    return to_core_config(KeyframeConfig, config)
 
 
 @stage(name="ingest", version=1, config=IngestConfig, output=CaptureArtifact, raw_inputs=("recording",))
@@ -30,10 +47,7 @@ def ingest_recording(recording: Path, config: IngestConfig) -> CaptureArtifact:
     """Read the recording at ``recording`` (any supported format) into a capture artifact, at the
     working resolution and, for a long recording, its keyframes only (chosen from a first read of
     the poses and depth alone, so the images of the other frames are never decoded)."""
-    options = ReadOptions(
-        stride=config.stride, max_frames=config.max_frames, rgb_max_width=config.rgb_max_width,
-        rgb_max_side=config.rgb_max_side,
-    )
+    options = to_core_config(ReadOptions, config)
     if config.keyframes_max is not None:
         geometry = read_capture(Path(recording), replace(options, skip_rgb=True))
         if geometry.num_frames > config.keyframes_max:

@@ -27,23 +27,35 @@ from schemas import (
     Registration,
     TrajectoriesArtifact,
 )
-from tasks._convert import to_artifact, to_core
+from tasks._convert import config_map, core_kwargs, to_artifact, to_core, to_core_config
 from tasks._stage import stage
+
+config_map(
+    JointConfig,
+    {
+        JointFitConfig: "ransac_iterations ransac_threshold_m min_motion_m screw_bic_margin seed",
+        estimate_joint: "reference_frame",
+    },
+    stage_only={
+        "model_screw": "the effect screw_joint: sets JointFitConfig's screw_bic_margin, min_screw_travel_m and "
+        "screw_min_pitch_t together, so that every rotating part is a screw",
+    },
+)
+config_map(
+    JointStateConfig,
+    {StateRefineConfig: {"max_points": "max_points", "refine_line": "refine_axis"}},
+    stage_only={
+        "refine_from_depth": "off: the stage keeps the tracks' states and runs no StateRefineConfig at all",
+        "rgb_time_offset_s": "the effect time_offset: the value to_rgb_clock takes (it has no default)",
+    },
+)
+
+# The screw_joint effect enabled: a rotating part is a screw whatever its pitch's significance.
+_SCREW_ALWAYS = {"screw_bic_margin": float("-inf"), "min_screw_travel_m": 0.0, "screw_min_pitch_t": 0.0}
 
 
 def _fit_config(config: JointConfig) -> JointFitConfig:
-    return JointFitConfig(
-        ransac_iterations=config.ransac_iterations,
-        ransac_threshold_m=config.ransac_threshold_m,
-        min_motion_m=config.min_motion_m,
-        seed=config.seed,
-        # The screw_joint effect enabled: a rotating part is a screw whatever its pitch's significance.
-        **(
-            {"screw_bic_margin": float("-inf"), "min_screw_travel_m": 0.0, "screw_min_pitch_t": 0.0}
-            if config.model_screw
-            else {"screw_bic_margin": config.screw_bic_margin}
-        ),
-    )
+    return to_core_config(JointFitConfig, config, **(_SCREW_ALWAYS if config.model_screw else {}))
 
 
 def _subset(traj: Trajectories, keep: np.ndarray) -> Trajectories:
@@ -66,7 +78,7 @@ def fit_joints(trajectories: TrajectoriesArtifact, masks: MaskSequenceArtifact, 
         keep = part_ids == label - 1
         n_tracks = int(np.count_nonzero(traj.valid[:, keep].any(0)))
         try:
-            fit = estimate_joint(_subset(traj, keep), _fit_config(config), reference_frame=config.reference_frame)
+            fit = estimate_joint(_subset(traj, keep), _fit_config(config), **core_kwargs(estimate_joint, config))
         except Exception as e:  # noqa: BLE001 (one candidate's failure is its own: it is reported, the others go on)
             why = "no point could be tracked on it" if n_tracks == 0 else f"no joint could be fitted to its {n_tracks} tracks ({e})"
             fates.append(PartFateArtifact(candidate=candidate_index(masks, label), fate="dropped", stage="fit_joints",
@@ -135,7 +147,7 @@ def refine_states(
             try:
                 refined = refine_joint_states(
                     joint, capture, seq, k + 1, registration.canonical_from_session,
-                    StateRefineConfig(max_points=config.max_points, refine_axis=config.refine_line),
+                    to_core_config(StateRefineConfig, config),
                 )  # fmt: skip
             except Exception as e:  # noqa: BLE001 (this joint keeps its tracks' states; the others go on)
                 notes.append(f"{params.name}: the states could not be refined from depth ({type(e).__name__}: {e}); "

@@ -25,12 +25,10 @@ from schemas import (
     SettlePartsConfig,
     TrajectoriesArtifact,
 )
-from tasks._convert import to_artifact, to_core
+from tasks._convert import config_map, to_artifact, to_core, to_core_config
 from tasks._stage import stage
 
-
-def _core_config(config: SettlePartsConfig) -> SettleConfig:
-    return SettleConfig(**config.model_dump())
+config_map(SettlePartsConfig, {SettleConfig: " ".join(SettlePartsConfig.model_fields)})  # every field, by its name
 
 
 @stage(name="settle_parts", version=3, config=SettlePartsConfig, output=JointSet)
@@ -54,7 +52,7 @@ def settle_candidate_parts(
     earlier = [to_core(PartFate, f) for f in list(masks.fates) + list(joints.fates)]
     decision = settle_parts(
         to_core(Capture, dynamic), to_core(MaskSequence, masks), registration.canonical_from_session, candidate_joints,
-        candidates=masks.candidates, tracks=tracks, earlier=earlier, config=_core_config(config),
+        candidates=masks.candidates, tracks=tracks, earlier=earlier, config=to_core_config(SettleConfig, config),
     )  # fmt: skip
     by_label = dict(zip(labels, joints.joints, strict=True))
     kept, selection = [], {}

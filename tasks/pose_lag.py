@@ -11,7 +11,6 @@ recorded; the effect ``pose_lag`` forces it.
 
 from __future__ import annotations
 
-import dataclasses
 import math
 
 import numpy as np
@@ -21,8 +20,20 @@ from artitwin_core.capture import Capture, PoseLag, estimate_pose_lag
 from artitwin_core.capture import PoseLagConfig as CorePoseLagConfig
 from artitwin_core.capture import correct_pose_lag as shift_poses
 from schemas import CaptureArtifact, PoseLagResult, PoseLagStageConfig
-from tasks._convert import to_core
+from tasks._convert import config_map, core_kwargs, to_core, to_core_config
 from tasks._stage import stage
+
+config_map(
+    PoseLagStageConfig,
+    {
+        CorePoseLagConfig: "max_lag_frames max_depth_m",
+        PoseLag.why_not: {"min_lag_frames": "min_lag_frames", "min_z_score": "min_z", "min_agreement_z": "min_agreement_z"},
+    },
+    stage_only={
+        "correct": "whether the stage applies a significant lag (and whether the flow runs correct_pose_lag)",
+        "model": "the effect pose_lag: apply an estimated lag whatever the gates say",
+    },
+)
 
 METHOD = "depth-consistency-between-frames"
 
@@ -56,12 +67,12 @@ def fit_pose_lag(capture: CaptureArtifact, config: PoseLagStageConfig) -> PoseLa
     A recording too short to search is reported (``estimated = False``, a note), not refused: the
     lag is an optional correction and the run goes on with the poses as recorded.
     """
-    core = dataclasses.replace(CorePoseLagConfig(), max_lag_frames=config.max_lag_frames, max_depth_m=config.max_depth_m)
+    core = to_core_config(CorePoseLagConfig, config)
     try:
         lag = estimate_pose_lag(to_core(Capture, capture), core)
     except InputError as e:
         return _not_estimated(capture, f"The pose lag was not estimated: {e}")
-    why = lag.why_not(config.min_lag_frames, config.min_z_score, config.min_agreement_z)
+    why = lag.why_not(**core_kwargs(PoseLag.why_not, config))
     in_range = math.isfinite(lag.lag_s) and not lag.at_range_end
     forced = bool(config.model and why and in_range and lag.lag_s != 0.0)
     applied = bool(config.correct and (not why or forced))

@@ -15,6 +15,7 @@ from artitwin_core.gaussians import GaussianParams
 from artitwin_core.reconstruction import (
     InitConfig,
     PoseRefineConfig,
+    ReconstructionConfig,
     SensorModel,
     TrainConfig,
     evaluate_views,
@@ -25,37 +26,34 @@ from artitwin_core.reconstruction import (
 )
 from schemas import CameraPoses, CaptureArtifact, GaussianCheckpoint, StageReport
 from schemas._reconstruct import PoseRefineStageConfig, ReconstructConfig
-from tasks._convert import to_artifact, to_core
+from tasks._convert import config_map, core_values, to_artifact, to_core, to_core_config
 from tasks._stage import stage
+
+config_map(PoseRefineStageConfig, {PoseRefineConfig: " ".join(PoseRefineStageConfig.model_fields)})  # every field, by its name
+config_map(
+    ReconstructConfig,
+    {
+        ReconstructionConfig: "holdout_every",
+        InitConfig: {"voxel_size_m": "voxel_size_m", "max_init_points": "max_points", "min_confidence": "min_confidence",
+                     "max_depth_m": "max_depth_m"},
+        TrainConfig: {**{n: n for n in "steps lambda_dssim depth_weight sh_degree max_gaussians grad_threshold backend "
+                         "seed sensor_effects".split()}, "train_max_side": "max_side"},
+    },
+)
 
 
 def pose_config(config: PoseRefineStageConfig) -> PoseRefineConfig:
     """The core dataclass for a stage config."""
-    return PoseRefineConfig(**config.model_dump())
+    return to_core_config(PoseRefineConfig, config)
 
 
 def init_config(config: ReconstructConfig) -> InitConfig:
-    return InitConfig(
-        voxel_size_m=config.voxel_size_m,
-        max_points=config.max_init_points,
-        min_confidence=config.min_confidence,
-        max_depth_m=config.max_depth_m,
-    )
+    return to_core_config(InitConfig, config)
 
 
 def train_config(config: ReconstructConfig) -> TrainConfig:
-    return TrainConfig.with_schedule(
-        config.steps,
-        lambda_dssim=config.lambda_dssim,
-        depth_weight=config.depth_weight,
-        sh_degree=config.sh_degree,
-        max_gaussians=config.max_gaussians,
-        grad_threshold=config.grad_threshold,
-        backend=config.backend,
-        max_side=config.train_max_side,
-        seed=config.seed,
-        sensor_effects=tuple(config.sensor_effects),
-    )
+    """The training config, its densification and SH schedule stretched to ``steps``."""
+    return TrainConfig.with_schedule(**core_values(TrainConfig, config))
 
 
 def sensor_fields(model: SensorModel | None) -> dict:

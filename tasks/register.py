@@ -9,6 +9,7 @@ import numpy as np
 from artitwin_core import InputError
 from artitwin_core.capture import Capture
 from artitwin_core.change import (
+    ChangeConfig,
     PartConfig,
     build_canonical_tsdf,
     mask_overlay,
@@ -21,20 +22,42 @@ from artitwin_core.registration import RegistrationConfig, register_recordings
 from schemas import (
     CameraPoses,
     CaptureArtifact,
+    ChangeStageConfig,
     MaskSequenceArtifact,
     PartFateArtifact,
     PartMasksConfig,
-    RegisterConfig,
+    PartStageConfig,
     Registration,
+    RegistrationStageConfig,
     ReportImage,
     StageReport,
 )
-from tasks._convert import to_artifact, to_core
+from tasks._convert import config_map, core_kwargs, to_artifact, to_core, to_core_config
 from tasks._stage import stage
 
+config_map(
+    RegistrationStageConfig,
+    {RegistrationConfig: "max_depth_m yaw_step_deg refuse_unconvincing", register_recordings: "gravity"},
+    stage_only={
+        "photometric": "off: RegistrationConfig.photometric_blur_rad is () (no photometric refinement); on: its "
+        "default levels",
+    },
+)
+config_map(
+    PartMasksConfig,
+    {
+        build_canonical_tsdf: {"tsdf_voxel_m": "voxel_m", "max_depth_m": "max_depth_m", "tsdf_max_frames": "max_frames"},
+        segment_parts: {"gravity": "gravity", "parts": "config"},
+        propagate_masks_sam2: {"sam2_checkpoint": "checkpoint", "sam2_model_config": "model_config"},
+    },
+    differs={"parts": "segment_parts takes config=None for PartConfig(); PartStageConfig's own map checks its defaults"},
+)
+config_map(PartStageConfig, {PartConfig: " ".join(PartStageConfig.model_fields)})  # every field, by its name
+config_map(ChangeStageConfig, {ChangeConfig: " ".join(ChangeStageConfig.model_fields)})
 
-@stage(name="register", version=8, config=RegisterConfig, output=Registration)
-def register_dynamic(static: CaptureArtifact, dynamic: CaptureArtifact, config: RegisterConfig) -> Registration:
+
+@stage(name="register", version=8, config=RegistrationStageConfig, output=Registration)
+def register_dynamic(static: CaptureArtifact, dynamic: CaptureArtifact, config: RegistrationStageConfig) -> Registration:
     """``canonical_from_session`` of the dynamic recording: hypotheses from the poses and a yaw sweep
     about gravity, scored against what the static recording saw, gravity-keeping ICP, a photometric
     refinement against the static images, and a check that the refined placement lays the same
@@ -42,12 +65,10 @@ def register_dynamic(static: CaptureArtifact, dynamic: CaptureArtifact, config: 
 
     Raises :class:`artitwin_core.registration.RegistrationError` (an ``InputError``) when no
     hypothesis is convincing, so that part_masks never runs on a wrong placement."""
-    cfg = RegistrationConfig(
-        max_depth_m=config.max_depth_m, yaw_step_deg=config.yaw_step_deg,
-        photometric_blur_rad=RegistrationConfig.photometric_blur_rad if config.photometric else (),
-        refuse_unconvincing=config.refuse_unconvincing,
+    cfg = to_core_config(RegistrationConfig, config, **({} if config.photometric else {"photometric_blur_rad": ()}))
+    result = register_recordings(
+        to_core(Capture, static), to_core(Capture, dynamic), config=cfg, **core_kwargs(register_recordings, config)
     )
-    result = register_recordings(to_core(Capture, static), to_core(Capture, dynamic), gravity=config.gravity, config=cfg)
     final = result.diagnostics["final"]  # the winner's scores once refined
     rival = result.diagnostics["verdict"].get("rival_support")
     return Registration(
@@ -88,19 +109,14 @@ def label_parts(
             "SAM2 checkpoint (e.g. sam2.1_hiera_large.pt), or leave it unset for the geometric backend (no weights)."
         )
     canonical = build_canonical_tsdf(
-        to_core(Capture, static),
-        voxel_m=config.tsdf_voxel_m,
-        max_depth_m=config.max_depth_m,
-        max_frames=config.tsdf_max_frames,
-        world_from_camera=static_poses.world_from_camera,
+        to_core(Capture, static), world_from_camera=static_poses.world_from_camera,
+        **core_kwargs(build_canonical_tsdf, config),
     )
     capture = to_core(Capture, dynamic)
-    seg = segment_parts(capture, registration.canonical_from_session, canonical, gravity=config.gravity, config=PartConfig())
+    seg = segment_parts(capture, registration.canonical_from_session, canonical, **core_kwargs(segment_parts, config))
     masks = seg.masks
     if config.sam2_checkpoint:
-        part = propagate_masks_sam2(
-            capture.rgb, masks.part[-1], config.sam2_checkpoint, model_config=config.sam2_model_config
-        )
+        part = propagate_masks_sam2(capture.rgb, masks.part[-1], **core_kwargs(propagate_masks_sam2, config))
         part[np.asarray(masks.hand, bool)] = 0
         masks = MaskSequence(part=part, hand=masks.hand, score=masks.score)
     return to_artifact(

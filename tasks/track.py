@@ -7,14 +7,22 @@ import numpy as np
 from artitwin_core.capture import Capture
 from artitwin_core.masks import MaskSequence
 from artitwin_core.tracking import TrackingConfig, track_part_points
-from schemas import CaptureArtifact, MaskSequenceArtifact, Registration, TrackConfig, TrajectoriesArtifact
-from tasks._convert import to_core
+from schemas import (
+    CaptureArtifact,
+    MaskSequenceArtifact,
+    Registration,
+    TrackingStageConfig,
+    TrajectoriesArtifact,
+)
+from tasks._convert import config_map, to_core, to_core_config
 from tasks._stage import stage
 
+config_map(TrackingStageConfig, {TrackingConfig: {"max_tracks": "max_points"}})
 
-@stage(name="track", version=7, config=TrackConfig, output=TrajectoriesArtifact)
+
+@stage(name="track", version=7, config=TrackingStageConfig, output=TrajectoriesArtifact)
 def track_parts(
-    dynamic: CaptureArtifact, masks: MaskSequenceArtifact, registration: Registration, config: TrackConfig
+    dynamic: CaptureArtifact, masks: MaskSequenceArtifact, registration: Registration, config: TrackingStageConfig
 ) -> TrajectoriesArtifact:
     """Tracks of each labelled part, lifted to the canonical frame; ``part_ids`` says whose. A part
     whose tracking fails gets no tracks and a note; the others are tracked all the same."""
@@ -27,7 +35,7 @@ def track_parts(
     for label in labels:
         try:
             tr = track_part_points(capture, seq, registration.canonical_from_session, part_label=label,
-                                   config=TrackingConfig(max_points=config.max_tracks))
+                                   config=to_core_config(TrackingConfig, config))
         except Exception as e:  # noqa: BLE001 (one part's failure is that part's: settle_parts drops it, the rest go on)
             notes.append(f"mask label {label}: tracking failed ({type(e).__name__}: {e}); it has no tracks.")
             continue

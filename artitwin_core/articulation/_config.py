@@ -5,6 +5,7 @@ from __future__ import annotations
 from dataclasses import dataclass, field
 
 from artitwin_core._errors import InputError
+from artitwin_core.gaussians import BackendName
 
 
 @dataclass(frozen=True)
@@ -76,6 +77,8 @@ class ArticulationConfig:
         seed_background_max_points: at most this many of those.
         appearance_knots: knots of each part's brightness curve over its joint range (0 = no
             curve: parts keep their closed-state colours at every state; see ``PartAppearance``).
+            0 by default, as the pipeline runs it, until the twin artifact stores the curves
+            (trained curves that are dropped would darken the parts); 8 is a tested setting.
         lr_part_gain: Adam learning rate of the curves' log gains.
         lr_means, lr_sh_dc, lr_sh_rest, lr_opacity, lr_scales, lr_quats: Adam learning rates.
         min_opacity: after each phase, trained Gaussians fainter than this are pruned.
@@ -102,7 +105,7 @@ class ArticulationConfig:
     seed_opacity: float = 0.5
     seed_background: bool = True
     seed_background_max_points: int = 15_000
-    appearance_knots: int = 8
+    appearance_knots: int = 0
     lr_part_gain: float = 0.02
     lr_means: float = 1.6e-4
     lr_sh_dc: float = 2.5e-3
@@ -112,7 +115,7 @@ class ArticulationConfig:
     lr_quats: float = 1e-3
     min_opacity: float = 0.005
     background: tuple[float, float, float] = (0.0, 0.0, 0.0)
-    backend: str = "auto"
+    backend: BackendName = "auto"
     max_side: int | None = None
     seed: int = 0
 

@@ -15,7 +15,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from artitwin_core._errors import InputError
-from artitwin_core.joints import joint_transforms
+from artitwin_core.joints import JointType, joint_transforms
 
 TARGETS = ("photometric", "depth", "depth-noise", "joint-tracks")
 
@@ -55,7 +55,7 @@ class TrackModel:
     motions: np.ndarray
     points_closed: np.ndarray
     q: np.ndarray
-    joint_type: str
+    joint_type: JointType
     axis: np.ndarray
     pivot: np.ndarray
 

@@ -20,6 +20,7 @@ from collections.abc import Callable, Iterator
 from contextlib import contextmanager
 from dataclasses import dataclass, field
 from pathlib import Path
+from typing import Literal
 
 import numpy as np
 
@@ -28,6 +29,7 @@ from artitwin_core.export._model import Z_UP_FROM_Y_UP
 from artitwin_core.geometry import invert_se3, quat_wxyz_to_matrix
 from artitwin_core.joints import Joint, joint_transforms
 
+SimStatus = Literal["ok", "mismatch", "failed", "skipped"]
 SIMULATORS = ("yourdfpy", "pybullet", "mujoco_urdf", "mujoco_mjcf")
 _PACKAGE = {"yourdfpy": "yourdfpy", "pybullet": "pybullet", "mujoco_urdf": "mujoco", "mujoco_mjcf": "mujoco"}
 
@@ -67,7 +69,7 @@ class SimResult:
     """
 
     simulator: str
-    status: str
+    status: SimStatus
     max_error_m: float = float("nan")
     part_errors_m: dict[str, float] = field(default_factory=dict)
     states: int = 0

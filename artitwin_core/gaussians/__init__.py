@@ -1,6 +1,6 @@
 """3D Gaussian splatting: parameters, rasterization (CPU and CUDA backends), densification."""
 
-from artitwin_core.gaussians._device import Backend, resolve_backend
+from artitwin_core.gaussians._device import Backend, BackendName, resolve_backend
 from artitwin_core.gaussians._rasterize import RenderOutput, rasterize
 from artitwin_core.gaussians._sh import eval_sh_colors, num_sh_bases
 from artitwin_core.gaussians._types import (
@@ -12,6 +12,7 @@ from artitwin_core.gaussians._types import (
 
 __all__ = [
     "Backend",
+    "BackendName",
     "LABEL_BACKGROUND",
     "LABEL_INTERIOR",
     "LABEL_PART",

@@ -8,13 +8,15 @@ without never touches CUDA. ``"auto"`` is CUDA with gsplat when both are present
 from __future__ import annotations
 
 from dataclasses import dataclass
+from typing import Literal, get_args
 
 import torch
 
 from artitwin_core._errors import InputError
 from artitwin_core.gaussians._raster_cuda import gsplat_available
 
-_NAMES = ("auto", "cpu", "reference", "cuda")
+BackendName = Literal["auto", "cpu", "reference", "cuda"]
+_NAMES: tuple[BackendName, ...] = get_args(BackendName)
 
 
 @dataclass(frozen=True)
@@ -30,7 +32,7 @@ class Backend:
         return self.device.type == "cuda"
 
 
-def resolve_backend(backend: str = "auto") -> Backend:
+def resolve_backend(backend: BackendName = "auto") -> Backend:
     """The backend and device for a config's ``backend`` (``auto``, ``cpu``, ``reference``, ``cuda``).
 
     ``"cuda"`` without a CUDA device or without gsplat raises :class:`InputError` saying what is

@@ -12,11 +12,12 @@ from artitwin_core.joints._model import joint_transforms
 from artitwin_core.joints._simulate import random_part_joint, simulate_trajectories
 from artitwin_core.joints._states import StateRefineConfig, refine_joint_states
 from artitwin_core.joints._timing import poses_on_rgb_clock, to_rgb_clock
-from artitwin_core.joints._types import JOINT_TYPES, Joint
+from artitwin_core.joints._types import JOINT_TYPES, Joint, JointType
 from artitwin_core.joints._uncertainty import with_registration_error
 
 __all__ = [
     "JOINT_TYPES",
+    "JointType",
     "HypothesisScore",
     "Joint",
     "JointErrors",

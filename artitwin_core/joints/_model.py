@@ -8,7 +8,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from artitwin_core.joints._types import JOINT_TYPES
+from artitwin_core.joints._types import JOINT_TYPES, JointType
 
 
 def skew(v: np.ndarray) -> np.ndarray:
@@ -35,7 +35,7 @@ def rotations_about(axis: np.ndarray, angles: np.ndarray) -> np.ndarray:
 
 
 def joint_motion(
-    joint_type: str, axis: np.ndarray, pivot: np.ndarray, q: np.ndarray, pitch: float = 0.0
+    joint_type: JointType, axis: np.ndarray, pivot: np.ndarray, q: np.ndarray, pitch: float = 0.0
 ) -> tuple[np.ndarray, np.ndarray]:
     """Rotations ``[T, 3, 3]`` and translations ``[T, 3]`` metres of the part at states ``q [T]``.
 
@@ -62,7 +62,7 @@ def joint_motion(
 
 
 def joint_transforms(
-    joint_type: str, axis: np.ndarray, pivot: np.ndarray, q: np.ndarray, pitch: float = 0.0
+    joint_type: JointType, axis: np.ndarray, pivot: np.ndarray, q: np.ndarray, pitch: float = 0.0
 ) -> np.ndarray:
     """``[T, 4, 4]`` float64 ``world_from_closed`` part motions at states ``q [T]`` (see ``joint_motion``)."""
     rot, trans = joint_motion(joint_type, axis, pivot, q, pitch)

@@ -10,7 +10,7 @@ from __future__ import annotations
 import numpy as np
 
 from artitwin_core.joints._model import joint_motion
-from artitwin_core.joints._types import Joint
+from artitwin_core.joints._types import Joint, JointType
 from artitwin_core.tracking import Trajectories
 
 
@@ -39,7 +39,7 @@ def opening_profile(n_frames: int, q_max: float, rng: np.random.Generator) -> np
 
 
 def random_part_joint(
-    joint_type: str, n_tracks: int, n_frames: int, rng: np.random.Generator
+    joint_type: JointType, n_tracks: int, n_frames: int, rng: np.random.Generator
 ) -> tuple[Joint, np.ndarray]:
     """A random door-, drawer- or knob-like part and its joint.
 

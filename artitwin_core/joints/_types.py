@@ -3,10 +3,12 @@
 from __future__ import annotations
 
 from dataclasses import dataclass
+from typing import Literal, get_args
 
 import numpy as np
 
-JOINT_TYPES = ("revolute", "prismatic", "screw", "fixed")
+JointType = Literal["revolute", "prismatic", "screw", "fixed"]
+JOINT_TYPES: tuple[JointType, ...] = get_args(JointType)
 
 
 @dataclass(frozen=True)
@@ -43,7 +45,7 @@ class Joint:
             worse direction), or None (prismatic and fixed joints); as ``axis_se_rad``.
     """
 
-    joint_type: str
+    joint_type: JointType
     axis: np.ndarray
     pivot: np.ndarray
     q: np.ndarray

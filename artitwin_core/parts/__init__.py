@@ -6,6 +6,6 @@ with the reason (``PartFate``); ``relabel`` applies the decision to the masks.
 """
 
 from artitwin_core.parts._settle import PartDecision, SettleConfig, relabel, settle_parts
-from artitwin_core.parts._types import FATES, PartFate
+from artitwin_core.parts._types import FATES, Fate, PartFate
 
-__all__ = ["FATES", "PartDecision", "PartFate", "SettleConfig", "relabel", "settle_parts"]
+__all__ = ["FATES", "Fate", "PartDecision", "PartFate", "SettleConfig", "relabel", "settle_parts"]

@@ -3,8 +3,10 @@
 from __future__ import annotations
 
 from dataclasses import dataclass
+from typing import Literal, get_args
 
-FATES = ("kept", "merged", "dropped")
+Fate = Literal["kept", "merged", "dropped"]
+FATES: tuple[Fate, ...] = get_args(Fate)
 
 
 @dataclass(frozen=True)
@@ -29,7 +31,7 @@ class PartFate:
     """
 
     candidate: int
-    fate: str
+    fate: Fate
     stage: str
     reason: str = ""
     into: int | None = None

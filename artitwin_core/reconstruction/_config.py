@@ -11,6 +11,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from artitwin_core._errors import InputError
+from artitwin_core.gaussians import BackendName
 from artitwin_core.reconstruction._sensor import check_sensor_effects
 
 
@@ -155,7 +156,7 @@ class TrainConfig:
     opacity_reset_every: int = 600
     opacity_reset_value: float = 0.01
     background: tuple[float, float, float] = (0.0, 0.0, 0.0)
-    backend: str = "auto"
+    backend: BackendName = "auto"
     max_side: int | None = None
     seed: int = 0
     sensor_effects: tuple[str, ...] = ()

@@ -24,6 +24,7 @@ import os
 import tempfile
 from dataclasses import dataclass, field
 from pathlib import Path
+from typing import Literal
 
 import numpy as np
 
@@ -33,6 +34,8 @@ from artitwin_core.geometry import invert_se3
 from artitwin_core.reconstruction._config import PoseRefineConfig
 
 log = logging.getLogger(__name__)
+
+RefineStatus = Literal["refined", "partial", "fallback"]
 
 
 @dataclass(frozen=True)
@@ -63,7 +66,7 @@ class PoseRefinement:
     num_points: int
     reprojection_error_px: float
     scale: float
-    status: str
+    status: RefineStatus
     notes: list[str] = field(default_factory=list)
     distortion: np.ndarray | None = None
 

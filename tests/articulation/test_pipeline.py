@@ -19,7 +19,8 @@ PHASE1_STEPS = 80
 @pytest.fixture(scope="module")
 def phase1(tiny_scene, true_masks, canonical):
     truth = tiny_scene.truth
-    config = ArticulationConfig(holdout_every=3, phase1_steps=PHASE1_STEPS, phase2_steps=0, backend="cpu")
+    config = ArticulationConfig(holdout_every=3, phase1_steps=PHASE1_STEPS, phase2_steps=0, backend="cpu",
+                                appearance_knots=8)
     result = articulate(
         canonical, tiny_scene.static, truth.static_world_from_camera, tiny_scene.dynamic,
         truth.dynamic_world_from_camera, true_masks, truth.joints, config,

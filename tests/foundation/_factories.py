@@ -37,7 +37,10 @@ def make_artifact(cls: type[Artifact], rng: np.random.Generator) -> Artifact:
             values[name] = [make_artifact(sub, rng), make_artifact(sub, rng)] if is_list else make_artifact(sub, rng)
             continue
         ann = info.annotation
-        if ann is str:
+        if typing.get_origin(ann) is typing.Literal:
+            choices = typing.get_args(ann)
+            values[name] = choices[int(rng.integers(len(choices)))]
+        elif ann is str:
             values[name] = f"{name}-{rng.integers(1000)}"
         elif ann is bool:
             values[name] = bool(rng.integers(0, 2))

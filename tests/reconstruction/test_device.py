@@ -51,7 +51,8 @@ def train_both(
         rec.params, static, static.world_from_camera, scene.dynamic, truth.dynamic_world_from_camera, masks,
         truth.joints,
         ArticulationConfig(phase1_steps=phase_steps[0], phase2_steps=phase_steps[1], backend=backend,
-                           seed_max_points=500, seed_background_max_points=500, max_side=max_side[1]),
+                           seed_max_points=500, seed_background_max_points=500, max_side=max_side[1],
+                           appearance_knots=8),
     )  # fmt: skip
     return {"stage_i_losses": rec.losses, "stage_i_psnr": float(rec.evaluation.summary()["psnr_db"]),
             "stage_iv_losses": result.losses, "stage_iv_psnr": result.psnr_holdout_db, "twin": result.params}

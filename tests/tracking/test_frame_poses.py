@@ -10,7 +10,7 @@ from scipy.spatial.transform import Rotation
 from artitwin_core import InputError
 from artitwin_core.synth import SceneSpec, generate_scene
 from artitwin_core.tracking import FramePoseConfig, estimate_frame_poses
-from schemas import CaptureArtifact, FramePosesConfig, MaskSequenceArtifact
+from schemas import CaptureArtifact, FramePoseStageConfig, MaskSequenceArtifact
 from tasks import to_artifact
 from tasks.frame_poses import correct_frame_poses, fit_frame_poses
 
@@ -111,9 +111,9 @@ def test_stages_store_decide_and_correct(jittered, clean):
         masks = MaskSequenceArtifact(
             part=scene.truth.part_masks, hand=scene.truth.hand_masks, score=np.ones(t_count, np.float32)
         )
-        found = fit_frame_poses(capture, masks, FramePosesConfig())
+        found = fit_frame_poses(capture, masks, FramePoseStageConfig())
         assert found.applied == applied and found.recording == "dynamic"
-        fixed = correct_frame_poses(capture, found, FramePosesConfig())
+        fixed = correct_frame_poses(capture, found, FramePoseStageConfig())
         if applied:
             assert not found.note
             np.testing.assert_array_equal(fixed.depth, capture.depth)
@@ -122,9 +122,9 @@ def test_stages_store_decide_and_correct(jittered, clean):
         else:
             assert "does not stand out" in found.note
             assert fixed.equals(capture)
-    off = fit_frame_poses(capture, masks, FramePosesConfig(enabled=False))
+    off = fit_frame_poses(capture, masks, FramePoseStageConfig(enabled=False))
     assert not off.applied and "turned off" in off.note and off.pairs == 0
-    assert correct_frame_poses(capture, off, FramePosesConfig()).equals(capture)
+    assert correct_frame_poses(capture, off, FramePoseStageConfig()).equals(capture)
 
 
 def _door30(*effects):
