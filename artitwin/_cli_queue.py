@@ -12,14 +12,9 @@ import typer
 from rich.console import Console
 from rich.table import Table
 
+from artitwin._cli_common import StoreOpt, _fail, _load_config
 from artitwin_core import ArtiTwinError
 
-console = Console(stderr=True)
-
-StoreOpt = Annotated[
-    str | None,
-    typer.Option("--store", help="Store root: a directory or an fsspec URL (default: $ARTITWIN_STORE or ./.artitwin/store)."),
-]
 PoolOpt = Annotated[str, typer.Option("--pool", help="Prefect work pool.")]
 StagesOpt = Annotated[
     str | None,
@@ -39,17 +34,11 @@ def _stages(value: str | None) -> list[str] | None:
     return names
 
 
-def _fail(message: str, code: int = 2) -> None:
-    console.print(f"[bold red]error:[/] {message}")
-    raise typer.Exit(code)
-
-
 def _config(path: Path | None):
     """The queue's config: the file's, or the stage defaults (``PipelineConfig()``), which is what
     ``submit_scene``, ``dataset_status`` and the nightly deployment use without one, so that
     ``status`` finds the runs ``submit`` and the API queued (``artitwin run`` sizes its own for the
     machine instead)."""
-    from artitwin.cli import _load_config
     from schemas import PipelineConfig
 
     return _load_config(path) if path is not None else PipelineConfig()

@@ -11,10 +11,11 @@ from pathlib import Path
 from typing import Annotated, Any
 
 import typer
-from pydantic import ValidationError
 from rich.console import Console
 from rich.table import Table
 
+from artitwin._cli_common import StoreOpt, _fail, _load_config, console
+from artitwin._cli_queue import register as _register_queue_commands
 from artitwin_core import ArtiTwinError
 from schemas import PipelineConfig
 from schemas._effects import MODELLED_EFFECTS
@@ -22,42 +23,6 @@ from schemas._effects import MODELLED_EFFECTS
 app = typer.Typer(add_completion=False, no_args_is_help=True, help=__doc__)
 store_app = typer.Typer(no_args_is_help=True, help="Inspect and maintain the artifact store.")
 app.add_typer(store_app, name="store")
-console = Console(stderr=True)
-
-StoreOpt = Annotated[
-    str | None,
-    typer.Option("--store", help="Store root: a directory or an fsspec URL (default: $ARTITWIN_STORE or ./.artitwin/store)."),
-]
-
-
-def _fail(message: str, code: int = 2) -> None:
-    console.print(f"[bold red]error:[/] {message}")
-    raise typer.Exit(code)
-
-
-def _load_config(path: Path | None, preset: str = "default"):
-    if path is None:
-        try:
-            from flows import hardware_preset
-
-            return hardware_preset(preset)
-        except ValueError as e:
-            _fail(str(e))
-    if not path.is_file():
-        _fail(f"config file {path} does not exist")
-    text = path.read_text()
-    try:
-        if path.suffix in (".yaml", ".yml"):
-            import yaml
-
-            data = yaml.safe_load(text) or {}
-        else:
-            data = json.loads(text)
-        return PipelineConfig.model_validate(data)
-    except (ValueError, ValidationError) as e:
-        _fail(f"config file {path} is invalid:\n{e}")
-
-
 def _store_url(store: str | None) -> str:
     from flows._env import default_store_url
 
@@ -402,7 +367,5 @@ def main() -> None:
         console.print(f"[bold red]error:[/] {e}")
         sys.exit(2)
 
-
-from artitwin._cli_queue import register as _register_queue_commands  # noqa: E402  (needs app above)
 
 _register_queue_commands(app)

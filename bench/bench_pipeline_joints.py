@@ -330,6 +330,43 @@ def sweep_seeds(name: str, count: int) -> list[int]:
     return [base + 100 * k for k in range(count)]
 
 
+def _calibrated(scene, depth_calibration: tuple[float, float] | str):
+    """``scene`` with its depth calibrated as the calibrate_depth stage does (``"estimate"``: the
+    static recording's fit, applied when its standard error passes), and ``(scale, offset,
+    applied)``."""
+    from dataclasses import replace
+
+    applied = True
+    if depth_calibration == "estimate":
+        found = estimate_depth_calibration(scene.static)
+        scale, offset = found.scale, found.offset_m
+        applied = found.error_se_m <= DepthCalibrationConfig().max_error_se_m  # as the stage decides
+    else:
+        scale, offset = depth_calibration
+    if applied:
+        scene = replace(scene, static=calibrate_depth(scene.static, scale, offset),
+                        dynamic=calibrate_depth(scene.dynamic, scale, offset))
+    return scene, (scale, offset, applied)
+
+
+def _save_tracks(path: Path, traj, truth, k: int) -> None:
+    """Part ``k``'s tracks beside its true motion and joint, for offline joint-fit experiments."""
+    joint_true = truth.joints[k]
+    path.parent.mkdir(parents=True, exist_ok=True)
+    np.savez_compressed(
+        path,
+        points_in_world=traj.points_in_world,
+        pixels=traj.pixels,
+        valid=traj.valid,
+        query_frame=traj.query_frame,
+        part_world_from_closed=truth.part_world_from_closed[k],
+        q_true=joint_true.q,
+        axis_true=joint_true.axis,
+        pivot_true=joint_true.pivot,
+        type_true=joint_true.joint_type,
+    )
+
+
 def bench_scene(
     name: str, save_tracks: Path | None = None, cache: Path | None = None, static_poses: str = "refined",
     write_cache: Path | None = None, without_effects: tuple[str, ...] = (), rgb_time_offset_s: float = 0.0,
@@ -358,17 +395,7 @@ def bench_scene(
             scene = replace(scene, static=replace(s, world_from_camera=drift.apply(s.world_from_camera, s.timestamps)))
     calibration = None
     if depth_calibration is not None:  # the effect depth_scale_offset, as the calibrate_depth stage models it
-        applied = True
-        if depth_calibration == "estimate":
-            found = estimate_depth_calibration(scene.static)
-            scale, offset = found.scale, found.offset_m
-            applied = found.error_se_m <= DepthCalibrationConfig().max_error_se_m  # as the stage decides
-        else:
-            scale, offset = depth_calibration
-        calibration = (scale, offset, applied)
-        if applied:
-            scene = replace(scene, static=calibrate_depth(scene.static, scale, offset),
-                            dynamic=calibrate_depth(scene.dynamic, scale, offset))
+        scene, calibration = _calibrated(scene, depth_calibration)
     up = (
         _cached_upstream(name, cache, scene.dynamic)
         if cache is not None
@@ -411,19 +438,7 @@ def bench_scene(
             row["track_s"] = time.perf_counter() - t0
             up["tracks"][label] = traj
         if save_tracks is not None:
-            save_tracks.mkdir(parents=True, exist_ok=True)
-            np.savez_compressed(
-                save_tracks / f"{name}_part{k}.npz",
-                points_in_world=traj.points_in_world,
-                pixels=traj.pixels,
-                valid=traj.valid,
-                query_frame=traj.query_frame,
-                part_world_from_closed=truth.part_world_from_closed[k],
-                q_true=joint_true.q,
-                axis_true=joint_true.axis,
-                pivot_true=joint_true.pivot,
-                type_true=joint_true.joint_type,
-            )
+            _save_tracks(save_tracks / f"{name}_part{k}.npz", traj, truth, k)
         n_valid = traj.valid.sum(1)
         covered = np.nonzero(n_valid >= 3)[0]
         q_abs = np.abs(joint_true.q)

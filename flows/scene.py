@@ -176,8 +176,4 @@ def run_scene_inline(
             ex.shutdown()
 
 
-def stage_names() -> list[str]:
-    return list(STAGES)
-
-
 __all__ = ["PrefectExecutor", "SceneFailed", "finish_scene", "reconstruct_scene", "run_scene_inline", "stage_task"]

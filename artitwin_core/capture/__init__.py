@@ -7,15 +7,15 @@ and depth resolution, and raise :class:`artitwin_core.InputError` naming file an
 
 from artitwin_core.capture._calibrate import (
     DepthCalibration,
-    DepthCalibrationConfig,
     calibrate_depth,
     estimate_depth_calibration,
 )
 from artitwin_core.capture._common import depth_intrinsics_from_rgb, downscale_rgb, scale_intrinsics
+from artitwin_core.capture._config import DepthCalibrationConfig, KeyframeConfig, PoseLagConfig
 from artitwin_core.capture._detect import FORMATS, detect_format, read_capture, recording_files
 from artitwin_core.capture._drift import DriftSignificance, PoseDrift
-from artitwin_core.capture._keyframes import KeyframeConfig, KeyframeSelection, select_keyframes
-from artitwin_core.capture._lag import PoseLag, PoseLagConfig, correct_pose_lag, estimate_pose_lag
+from artitwin_core.capture._keyframes import KeyframeSelection, select_keyframes
+from artitwin_core.capture._lag import PoseLag, correct_pose_lag, estimate_pose_lag
 from artitwin_core.capture._nerfstudio import read_nerfstudio, write_nerfstudio
 from artitwin_core.capture._options import ReadOptions
 from artitwin_core.capture._r3d import read_r3d, write_r3d

@@ -20,6 +20,7 @@ import cv2
 import numpy as np
 
 from artitwin_core._errors import InputError
+from artitwin_core.capture._config import DepthCalibrationConfig
 from artitwin_core.capture._drift import (
     DriftSignificance,
     FeatureCache,
@@ -55,47 +56,6 @@ def calibrate_depth(capture: Capture, scale: float, offset_m: float) -> Capture:
     depth = (np.asarray(capture.depth, np.float32) - np.float32(offset_m)) / np.float32(scale)
     depth = np.where(depth > 0, depth, np.nan).astype(np.float32)
     return dataclasses.replace(capture, depth=depth)
-
-
-@dataclass(frozen=True)
-class DepthCalibrationConfig:
-    """Hyperparameters of :func:`estimate_depth_calibration`.
-
-    Attributes:
-        frame_gaps: each frame is compared with the frames this many frames later.
-        pixel_stride: every n-th depth pixel each way is used.
-        max_depth_m: depth beyond this is not used.
-        min_confidence: depth whose ARKit confidence (0 low, 1 medium, 2 high) is below this is
-            not used, in either frame of a pair (0 uses all; captures without confidence use all).
-        min_facing_cos: surfaces seen more obliquely than this (cosine of the angle between the
-            surface normal and the viewing ray) are not used: their depth is the least certain.
-        edge_m: a projected point whose four neighbouring depths span more than this lies on a
-            depth edge and is not used.
-        iterations: re-associations (each a weighted least-squares solve).
-        jackknife_blocks: the standard errors come from leaving out this many blocks of
-            consecutive frames in turn (a frame's points share its pose and depth-map errors, so
-            points are not independent).
-        estimate_depth: fit the depth error (False: take the depth as metric and fit the drift
-            alone).
-        pose_drift: fit the poses' linear drift (a turn about ``gravity`` and a translation, both
-            growing with time from the first frame) with the depth error. Drift bends the frames'
-            agreement as a depth error does, so the two are fitted together; SIFT matches between
-            frames (``feature_gaps`` apart) fix the drift along surfaces, where depth is blind.
-        gravity: direction of gravity in the recording's world frame.
-    """
-
-    frame_gaps: tuple[int, ...] = (2, 4, 8)
-    pixel_stride: int = 2
-    max_depth_m: float = 4.5
-    min_confidence: int = 1
-    min_facing_cos: float = 0.5
-    edge_m: float = 0.02
-    iterations: int = 8
-    jackknife_blocks: int = 8
-    estimate_depth: bool = True
-    pose_drift: bool = False
-    gravity: tuple[float, float, float] = (0.0, -1.0, 0.0)
-    feature_gaps: tuple[int, ...] = (2, 4, 8, 16)
 
 
 @dataclass(frozen=True)
@@ -192,8 +152,6 @@ def _pair_terms(capture: Capture, poses: np.ndarray, i: int, j: int, a: float, b
     cb = np.sum(n * (ray_i[idx] - ray_j), 1)
     points = ci + (a * di[idx] + b)[:, None] * ray_i[idx]
     return c0, ca, cb, di[idx], points, n
-
-
 
 
 def _feature_terms(

@@ -16,43 +16,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from artitwin_core._errors import InputError
+from artitwin_core.capture._config import KeyframeConfig
 from artitwin_core.capture._types import Capture
-
-
-@dataclass(frozen=True)
-class KeyframeConfig:
-    """How keyframes are chosen (see the module docstring).
-
-    Attributes:
-        max_frames: keep at most this many frames; a recording this long or shorter is kept whole.
-        view_step: relative weight of view change: a keyframe per this much camera travel over the
-            median depth plus rotation in radians (0.05: 5 cm at 1 m, or 2.9 degrees).
-        change_step: relative weight of scene change: a keyframe per this share of the depth
-            pixels that moved by more than ``depth_tol_m`` (+2 % of the depth) since the last one.
-        max_gap_s: never more than this many seconds between keyframes (before the thresholds
-            are scaled to meet ``max_frames``, which may widen it).
-        depth_tol_m: depth agreement tolerance of the scene-change test, metres.
-        grid_px: depth maps are sampled every this many pixels for the tests.
-        coverage_voxel_m: voxel edge of the coverage test, metres.
-        min_new_coverage: a frame is added back when at least this share of its voxels is seen
-            by no keyframe (at most ``max_frames // 10`` such frames, best first).
-    """
-
-    max_frames: int = 120
-    view_step: float = 0.05
-    change_step: float = 0.03
-    max_gap_s: float = 1.0
-    depth_tol_m: float = 0.03
-    grid_px: int = 4
-    coverage_voxel_m: float = 0.1
-    min_new_coverage: float = 0.25
-
-    def __post_init__(self) -> None:
-        if self.max_frames < 2:
-            raise InputError(f"KeyframeConfig.max_frames is {self.max_frames}; keep at least 2 frames.")
-        if self.view_step <= 0 or self.change_step <= 0 or self.max_gap_s <= 0:
-            raise InputError("KeyframeConfig.view_step, change_step and max_gap_s must be positive.")
 
 
 @dataclass(frozen=True)

@@ -28,58 +28,9 @@ from dataclasses import dataclass
 import numpy as np
 
 from artitwin_core._errors import InputError
+from artitwin_core.capture._config import PoseLagConfig
 from artitwin_core.capture._types import Capture
 from artitwin_core.geometry import interpolate_poses, invert_se3
-
-
-@dataclass(frozen=True)
-class PoseLagConfig:
-    """Hyperparameters of :func:`estimate_pose_lag`.
-
-    Attributes:
-        max_lag_frames: the lags searched, ``[-max, +max]`` frame intervals (the median spacing of
-            the timestamps); shrunk on short recordings so that at least ``min_frames`` frames
-            keep their poses inside the recorded span at every lag.
-        coarse_step_frames: step of the search over the whole range, frame intervals.
-        fine_step_frames: step of the second search, within ``fine_half_width_frames`` of the
-            coarse minimum.
-        fine_half_width_frames: half-width of the second search, frame intervals.
-        fit_half_width_frames: the lag is the vertex of a parabola fitted to the scores within
-            this many frame intervals of the best one.
-        frame_gaps: each frame's depth is projected into the frames this many frames before and
-            after it.
-        points_per_frame: depth pixels drawn per frame and pair (fewer when ``max_points`` binds).
-        max_points: at most this many projected points per lag, over all pairs (bounds the time
-            on long recordings).
-        robust_scale_m: a point whose depth misses by this much scores half of a point that is
-            missed entirely (Geman-McClure scale), metres; the fine search and the agreement test
-            count only points within this of the other frame's depth.
-        max_depth_m: depth beyond this is not used, metres.
-        min_confidence: depth whose ARKit confidence (0 low, 1 medium, 2 high) is below this is not
-            used, in either frame of a pair (captures without confidence use all).
-        edge_m: a projected point whose four neighbouring depths span more than this lies on a
-            depth edge and is missed, metres.
-        min_frames: the fewest frames that must be compared.
-        jackknife_blocks: the standard errors come from leaving out this many blocks of
-            consecutive frames in turn (a frame's points share its pose error).
-        seed: draws the depth pixels.
-    """
-
-    max_lag_frames: float = 4.0
-    coarse_step_frames: float = 0.25
-    fine_step_frames: float = 0.05
-    fine_half_width_frames: float = 0.5
-    fit_half_width_frames: float = 0.2
-    frame_gaps: tuple[int, ...] = (1, 2, 4, 8)
-    points_per_frame: int = 500
-    max_points: int = 150_000
-    robust_scale_m: float = 0.02
-    max_depth_m: float = 4.5
-    min_confidence: int = 1
-    edge_m: float = 0.05
-    min_frames: int = 6
-    jackknife_blocks: int = 8
-    seed: int = 0
 
 
 @dataclass(frozen=True)

@@ -11,25 +11,7 @@ import cv2
 import numpy as np
 
 from artitwin_core._errors import InputError
-
-
-@dataclass(frozen=True)
-class ChangeConfig:
-    """Thresholds of :func:`detect_changes`.
-
-    Attributes:
-        depth_tol_m, depth_tol_per_m2: a depth difference counts as change beyond
-            ``depth_tol_m + depth_tol_per_m2 * depth**2`` (metres).
-        appearance_threshold: appearance score in [0, 1] above which a pixel looks changed.
-        census_radius: half-size of the census window (pixels).
-        min_region_px: connected changed regions smaller than this are dropped.
-    """
-
-    depth_tol_m: float = 0.03
-    depth_tol_per_m2: float = 0.01
-    appearance_threshold: float = 0.45
-    census_radius: int = 2
-    min_region_px: int = 12
+from artitwin_core.change._config import ChangeConfig
 
 
 @dataclass(frozen=True)

@@ -28,7 +28,8 @@ from artitwin_core.diagnostics._catalog import (
     Vignetting,
 )
 from artitwin_core.diagnostics._compare import FrameComparison, compare_frames
-from artitwin_core.diagnostics._diagnose import DiagnoseConfig, Diagnosis, Structure, diagnose
+from artitwin_core.diagnostics._config import DiagnoseConfig
+from artitwin_core.diagnostics._diagnose import Diagnosis, Structure, diagnose
 from artitwin_core.diagnostics._heldout import ERROR_OF_TARGET, HeldOut, HeldOutCheck, evaluate_heldout
 from artitwin_core.diagnostics._plugin import (
     ENTRY_POINT_GROUP,

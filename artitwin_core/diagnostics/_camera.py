@@ -31,6 +31,7 @@ from dataclasses import replace
 import numpy as np
 from scipy.ndimage import gaussian_filter
 
+from artitwin_core.diagnostics._patch import drift_columns
 from artitwin_core.diagnostics._plugin import Effect, Evidence, register_effect
 from artitwin_core.diagnostics._residuals import ResidualData
 from artitwin_core.geometry import axis_angle_to_matrix
@@ -319,8 +320,6 @@ class PoseDrift(Effect):
     iterations = 3
 
     def null_columns(self, geometry):
-        from artitwin_core.diagnostics._surface_null import drift_columns
-
         return drift_columns(geometry)
 
     def applies(self, data: ResidualData) -> bool:

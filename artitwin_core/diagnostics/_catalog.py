@@ -14,6 +14,7 @@ from dataclasses import replace
 
 import numpy as np
 
+from artitwin_core.diagnostics._patch import depth_affine_columns
 from artitwin_core.diagnostics._plugin import Effect, Evidence, register_effect
 from artitwin_core.diagnostics._residuals import (
     ResidualData,
@@ -148,8 +149,6 @@ class DepthScaleOffset(Effect):
         return {"scale": float(s), "offset_m": float(o)}, ev
 
     def null_columns(self, geometry):
-        from artitwin_core.diagnostics._surface_null import depth_affine_columns
-
         return depth_affine_columns(geometry)
 
     def apply(self, data: ResidualData, params: dict) -> ResidualData:

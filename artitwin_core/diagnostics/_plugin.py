@@ -113,7 +113,7 @@ class Effect(ABC):
     def null_columns(self, geometry) -> np.ndarray | None:
         """For a depth effect the twin's own world-fixed geometry error can mimic (a pose drift, a
         depth bias): ``[n, k]`` its linearised change of the point-to-plane residual per parameter
-        at the pixels of ``geometry`` (``_surface_null.PatchGeometry``). The diagnosis then enables
+        at the pixels of ``geometry`` (``_patch.PatchGeometry``). The diagnosis then enables
         it only when it beats that null (``surface_null_check``). None (default): no such check."""
         return None
 

@@ -29,6 +29,7 @@ import numpy as np
 
 from artitwin_core.diagnostics._camera import _backproject, _normals
 from artitwin_core.diagnostics._heldout import heldout_frames
+from artitwin_core.diagnostics._patch import PatchGeometry, drift_columns
 from artitwin_core.diagnostics._residuals import ResidualData
 
 # Pixels seen more grazing than this (|cos| of the ray against the normal) are left out.
@@ -79,42 +80,6 @@ def default_voxel_m(data: ResidualData) -> float:
     """Patch size: three depth pixels' footprint at the median depth, at least 4 cm."""
     z = float(np.nanmedian(data.depth_pred)) if np.isfinite(data.depth_pred).any() else 1.0
     return float(max(0.04, 3.0 * z / np.median(data.depth_intrinsics[:, 0])))
-
-
-@dataclass(frozen=True)
-class PatchGeometry:
-    """Per usable depth pixel (``[n]`` or ``[n, 3]``), what an effect needs to say how it moves the
-    point-to-plane residual ``e = n . (q - p)``.
-
-    Attributes:
-        p, q: predicted and measured world points, metres.
-        normal: unit normal of the predicted surface.
-        z: predicted z-depth, metres.
-        ray_length: distance from the camera centre to ``p``, metres.
-        cos: cosine between the normal and the viewing ray.
-        seconds: time since the first frame.
-    """
-
-    p: np.ndarray
-    q: np.ndarray
-    normal: np.ndarray
-    z: np.ndarray
-    ray_length: np.ndarray
-    cos: np.ndarray
-    seconds: np.ndarray
-
-
-def drift_columns(g: PatchGeometry) -> np.ndarray:
-    """``[n, 6]`` d(e)/d(rates) of a pose drift (``PoseDrift``'s rotation and translation rates)."""
-    s = g.seconds[:, None]
-    return np.concatenate([s * np.cross(g.q, g.normal), s * g.normal], 1)
-
-
-def depth_affine_columns(g: PatchGeometry) -> np.ndarray:
-    """``[n, 2]`` d(e)/d(scale - 1, offset) of an affine depth error: a z change dz moves the point
-    along its ray by dz |p - c| / z, i.e. ``e`` by that times cos."""
-    along = g.ray_length / g.z * g.cos
-    return np.stack([g.z * along, along], 1)
 
 
 def _panel(data: ResidualData, voxel_m: float, columns):

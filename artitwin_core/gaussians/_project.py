@@ -13,7 +13,6 @@ added to the 2D covariance diagonal (the low-pass dilation).
 
 from __future__ import annotations
 
-import math
 from dataclasses import dataclass
 
 import torch
@@ -185,9 +184,3 @@ def screen_extent(
         mid = 0.5 * (cxx + cyy)
         lam_max = mid + torch.sqrt(torch.clamp_min(mid * mid - (cxx * cyy - cxy * cxy), 0.0))
         return r * torch.sqrt(cxx), r * torch.sqrt(cyy), r * torch.sqrt(lam_max), r
-
-
-def alpha_extent_sigma(opacity: float) -> float:
-    """Mahalanobis radius where ``opacity * exp(-r^2/2) = 1/255`` (0 if never reached)."""
-    o = opacity
-    return math.sqrt(2.0 * math.log(o * 255.0)) if o * 255.0 > 1.0 else 0.0

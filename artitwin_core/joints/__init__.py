@@ -1,6 +1,7 @@
 """Joints: types, estimation from 3D trajectories, state refinement from depth, metrics against ground truth."""
 
-from artitwin_core.joints._estimate import HypothesisScore, JointFit, JointFitConfig, estimate_joint
+from artitwin_core.joints._config import JointFitConfig, StateRefineConfig
+from artitwin_core.joints._estimate import estimate_joint
 from artitwin_core.joints._metrics import (
     JointErrors,
     axis_angle_error_deg,
@@ -9,8 +10,9 @@ from artitwin_core.joints._metrics import (
     point_line_distance,
 )
 from artitwin_core.joints._model import joint_transforms
+from artitwin_core.joints._result import HypothesisScore, JointFit
 from artitwin_core.joints._simulate import random_part_joint, simulate_trajectories
-from artitwin_core.joints._states import StateRefineConfig, refine_joint_states
+from artitwin_core.joints._states import refine_joint_states
 from artitwin_core.joints._timing import poses_on_rgb_clock, to_rgb_clock
 from artitwin_core.joints._types import JOINT_TYPES, Joint, JointType
 from artitwin_core.joints._uncertainty import with_registration_error

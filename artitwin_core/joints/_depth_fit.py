@@ -26,15 +26,12 @@ are not one plane (a carved front, a drawer's box) are left to the tracks.
 from __future__ import annotations
 
 from dataclasses import dataclass
-from typing import TYPE_CHECKING
 
 import numpy as np
 
+from artitwin_core.joints._config import StateRefineConfig
 from artitwin_core.joints._model import rotations_about
 from artitwin_core.joints._types import Joint
-
-if TYPE_CHECKING:
-    from artitwin_core.joints._states import StateRefineConfig
 
 # Neighbouring depth pixels are not independent (bilinear upsampling, a smoothed sensor): one in
 # this many counts as an independent measurement in the standard errors.

@@ -41,139 +41,19 @@ new line.
 
 from __future__ import annotations
 
-from dataclasses import dataclass, replace
+from dataclasses import replace
 
 import numpy as np
 from scipy.interpolate import PchipInterpolator
 
 from artitwin_core._errors import InputError
 from artitwin_core.capture import Capture
+from artitwin_core.joints._config import StateRefineConfig
 from artitwin_core.joints._depth_fit import fit_line_from_planes
 from artitwin_core.joints._model import joint_motion
 from artitwin_core.joints._surface import SurfaceModel, build_model, lift_frame, to_closed
 from artitwin_core.joints._types import Joint
 from artitwin_core.masks import MaskSequence
-
-
-@dataclass(frozen=True)
-class StateRefineConfig:
-    """Hyperparameters of :func:`refine_joint_states`.
-
-    Attributes:
-        max_points: mask pixels lifted per frame at most (an even subsample).
-        min_points: frames with fewer lifted points are not fitted (see ``anchor_confidence``).
-        mask_erode_px: the part mask is eroded by this many RGB pixels (mixed depth at borders).
-        hand_dilate_depth_px: the hand mask is grown by this many depth pixels (at the RGB/depth
-            size ratio, in RGB pixels) before it is excluded. A hand mask found in depth misses
-            the hand's outline, whose depth pixels mix hand and part (the pipeline's masks on
-            "door": 8456 of 51128 hand pixels), and the lift samples depth bilinearly, one
-            depth pixel farther. The hand's depth leaking into the part's points pulls a
-            frame's ``q``: on "door", 97 lifted points lay over 3 cm in front of the door's
-            face at 1.5 depth pixels, 38 at 2.5. State RMSE (deg) on the pipeline's masks: door
-            0.70 / 0.19 / 0.24 and strong-hand-occlusion 0.72 / 0.29 / 0.51 at 1.5 / 2.5 / 3.5
-            (wider leaves less of the door near the hand).
-        edge_rel: depth neighbours may spread by this fraction of the depth (the tracker's 0.05
-            rejects a surface seen at 65+ deg from its normal, which is how a door's inside
-            face is often seen; the silhouette's mixed pixels spread far more).
-        min_depth_confidence: ARKit depth confidence each depth neighbour needs (0-2).
-        voxel_m: the closed-state model keeps one point per voxel of this size, metres.
-        normal_neighbours: points used for each model normal (local PCA).
-        gate_m: a frame point farther than this from every model point is an outlier, metres.
-        robust_scale_m: point-to-plane residual at which the truncated quadratic loss saturates.
-        seed_confidence: tracked ``q`` with at least this confidence seeds the model.
-        coarse_step_rad: step of the first grid over ``q``.
-        coarse_points: about this many of a frame's points score the first grid.
-        search_below_rad, search_above_rad: the grid spans the seeds' range widened by these.
-        fine_step_rad: step of the second grid around the coarse minimum.
-        agree_rad: a confident tracked ``q`` within this of the depth fit is kept as it is.
-        q_tolerance_rad: depth-fit standard error at which its confidence is 0.5.
-        min_inlier_fraction: depth fits with fewer inliers get no confidence.
-        full_inlier_fraction: depth fits with this many inliers or more lose nothing for outliers.
-        grow_confidence: depth fits at least this confident add their points to the model.
-        anchor_confidence: a depth fit this confident anchors its frame; weaker fits, like
-            frames without depth whose tracks were unsure, are bridged from the anchors by a
-            monotone cubic (held beyond the first and last anchor, unless a tail fit below
-            measured them).
-        tail_max_se_rad, tail_min_inliers: beyond the first and last anchor, a depth fit with
-            a standard error within ``tail_max_se_rad`` on at least ``tail_min_inliers`` inlier
-            points measures its frame, whatever its inlier fraction: nothing else measured it,
-            and holding the nearest anchor claims the part stopped there. A door seen edge-on
-            at the end of a recording (opened past the camera's line of sight) is such a
-            sliver: most of its points are the door's edge face, which the closed model lacks
-            (the normal gate rejects them), so its inlier fraction is 0.1-0.4 while the face
-            points still pin the state. Measured on "door" at seed 202 and "high-noise" at seed
-            106: the last 7-9 frames' fits were 0.1-2.6 deg from the truth, with standard errors
-            0.14-0.37 deg, where holding left them 13 deg short.
-        grow: whether depth-fitted frames add their points to the model at all.
-        smooth_model: move each model point onto its neighbours' plane.
-        normal_gate_deg: a frame point whose own normal (PCA of ``frame_normal_neighbours`` of
-            the frame's points) is farther than this from its model match's is an outlier
-            (90 turns the gate off).
-        normal_oversample: frame normals are estimated on this many times ``max_points`` pixels.
-        refine_axis: after the per-frame pass, fit a door's line (axis and pivot) to the planes
-            its faces show in depth (``fit_line_from_planes``), then refit the other frames'
-            ``q`` with that line.
-        rest_rad: frames whose confident ``q`` is within this of 0 are at rest; their points
-            make the rest plane the turned faces are compared with.
-        plane_normal_tol_deg: a frame's face plane must turn no more than this from where the
-            per-frame state puts it.
-        plane_ransac_iterations, plane_ransac_band_m: RANSAC of each face plane (samples, and
-            the band in metres its score counts points in) before the robust refinement.
-        plane_min_fraction: the share of a frame's points its plane must hold (and of the rest
-            points, or the part is not a slab and its line is left to the tracks).
-        plane_outlier_z: a frame whose plane misses the fitted line by more than this many
-            standard errors is dropped and the line refitted (up to a third of the frames).
-        axis_min_frames: turned frames with a face plane the line fit needs.
-        axis_min_span_rad: the angle those frames must span.
-        axis_max_se_rad, axis_max_pivot_se_m: the line fit is used only when its standard
-            errors (axis direction, radians; line position, metres) are within these.
-        axis_max_change_rad, axis_max_shift_m: ... and when it turned the axis and moved the
-            line by no more than these from the input joint's (larger moves mean the model or
-            the matches are wrong, not the tracks).
-    """
-
-    max_points: int = 1500
-    min_points: int = 60
-    mask_erode_px: int = 2
-    hand_dilate_depth_px: float = 2.5
-    edge_rel: float = 0.25
-    min_depth_confidence: int = 1
-    voxel_m: float = 0.008
-    normal_neighbours: int = 30
-    gate_m: float = 0.04
-    robust_scale_m: float = 0.012
-    seed_confidence: float = 0.3
-    coarse_step_rad: float = float(np.radians(1.5))
-    coarse_points: int = 400
-    search_below_rad: float = float(np.radians(20.0))
-    search_above_rad: float = float(np.radians(100.0))
-    fine_step_rad: float = float(np.radians(0.1))
-    agree_rad: float = float(np.radians(1.5))
-    q_tolerance_rad: float = float(np.radians(1.0))
-    min_inlier_fraction: float = 0.4
-    full_inlier_fraction: float = 0.8
-    grow_confidence: float = 0.5
-    anchor_confidence: float = 0.3
-    tail_max_se_rad: float = float(np.radians(2.0))
-    tail_min_inliers: int = 15
-    grow: bool = False
-    smooth_model: bool = True
-    normal_gate_deg: float = 20.0
-    frame_normal_neighbours: int = 12
-    normal_oversample: int = 4
-    refine_axis: bool = True
-    rest_rad: float = float(np.radians(0.3))
-    plane_normal_tol_deg: float = 20.0
-    plane_ransac_iterations: int = 200
-    plane_ransac_band_m: float = 0.01
-    plane_min_fraction: float = 0.6
-    plane_outlier_z: float = 4.0
-    axis_min_frames: int = 3
-    axis_min_span_rad: float = float(np.radians(10.0))
-    axis_max_se_rad: float = float(np.radians(0.5))
-    axis_max_pivot_se_m: float = 0.005
-    axis_max_change_rad: float = float(np.radians(10.0))
-    axis_max_shift_m: float = 0.05
 
 
 def _validate(joint: Joint, capture: Capture, masks: MaskSequence, part_label: int, c_from_s) -> np.ndarray:

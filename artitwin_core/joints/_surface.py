@@ -8,20 +8,17 @@ normals turned towards the cameras (``build_model``).
 from __future__ import annotations
 
 from dataclasses import dataclass
-from typing import TYPE_CHECKING
 
 import cv2
 import numpy as np
 from scipy.spatial import cKDTree
 
 from artitwin_core.capture import Capture
+from artitwin_core.joints._config import StateRefineConfig
 from artitwin_core.joints._model import joint_motion
 from artitwin_core.joints._types import Joint
 from artitwin_core.masks import MaskSequence
 from artitwin_core.tracking._lift import lift_pixels
-
-if TYPE_CHECKING:
-    from artitwin_core.joints._states import StateRefineConfig
 
 
 @dataclass

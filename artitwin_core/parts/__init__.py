@@ -5,7 +5,8 @@ kept (a part with a joint of its own), merged into the part whose motion explain
 with the reason (``PartFate``); ``relabel`` applies the decision to the masks.
 """
 
-from artitwin_core.parts._settle import PartDecision, SettleConfig, relabel, settle_parts
+from artitwin_core.parts._config import SettleConfig
+from artitwin_core.parts._settle import PartDecision, relabel, settle_parts
 from artitwin_core.parts._types import FATES, Fate, PartFate
 
 __all__ = ["FATES", "Fate", "PartDecision", "PartFate", "SettleConfig", "relabel", "settle_parts"]

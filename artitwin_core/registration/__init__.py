@@ -12,11 +12,11 @@ linear pose drift against the canonical model, once its moving parts are masked.
 """
 
 from artitwin_core.registration._clouds import backproject, frame_points, fused_cloud
-from artitwin_core.registration._drift import SessionDrift, SessionDriftConfig, estimate_session_drift
+from artitwin_core.registration._config import RegistrationConfig, SessionDriftConfig
+from artitwin_core.registration._drift import SessionDrift, estimate_session_drift
 from artitwin_core.registration._register import register_recordings
 from artitwin_core.registration._types import (
     HypothesisScore,
-    RegistrationConfig,
     RegistrationError,
     RegistrationResult,
 )

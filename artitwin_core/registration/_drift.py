@@ -17,7 +17,7 @@ from __future__ import annotations
 
 import dataclasses
 from dataclasses import dataclass
-from typing import TYPE_CHECKING
+from typing import Protocol
 
 import cv2
 import numpy as np
@@ -35,40 +35,21 @@ from artitwin_core.capture._drift import (
     ray_normals,
     sift_matches,
 )
-
-if TYPE_CHECKING:
-    from artitwin_core.change import CanonicalMesh
+from artitwin_core.registration._config import SessionDriftConfig
 
 
-@dataclass(frozen=True)
-class SessionDriftConfig:
-    """Hyperparameters of :func:`estimate_session_drift`.
+class RayCastMesh(Protocol):
+    """What the drift fit needs of the canonical mesh (``artitwin_core.change.CanonicalMesh``, not
+    imported here: change detection builds on registration, not the other way round)."""
 
-    Attributes:
-        gravity: gravity's direction in the canonical frame (the drift turns about it).
-        mask_dilation_px: part and hand masks are grown by this many RGB pixels before they
-            exclude depth and keypoints (their edges are a few pixels loose).
-        max_association_m: a depth point further than this from the mesh surface ray-cast through
-            its pixel is left out (surfaces the static sweep did not see, moved things).
-        max_depth_m: depth beyond this is not used.
-        min_confidence: ARKit depth confidence below this is not used.
-        pixel_stride: every n-th depth pixel each way is used.
-        frame_gaps: the recording's frames are matched with the frames this many later.
-        static_neighbours: each frame is matched with this many static frames nearest to it.
-        iterations: at most this many re-associations (each a weighted least-squares solve).
-        jackknife_blocks: blocks of consecutive frames left out in turn for standard errors.
-    """
+    vertices: np.ndarray  # [V, 3] metres, canonical frame
+    triangles: np.ndarray  # [F, 3] vertex indices
 
-    gravity: tuple[float, float, float] = (0.0, -1.0, 0.0)
-    mask_dilation_px: int = 6
-    max_association_m: float = 0.03
-    max_depth_m: float = 4.5
-    min_confidence: int = 1
-    pixel_stride: int = 2
-    frame_gaps: tuple[int, ...] = (2, 4, 8)
-    static_neighbours: int = 3
-    iterations: int = 15
-    jackknife_blocks: int = 6
+    def render(
+        self, world_from_camera: np.ndarray, intrinsics, width: int, height: int
+    ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """rgb ``[H, W, 3]``, z-depth ``[H, W]`` metres (NaN: no surface), hit triangle ``[H, W]``."""
+        ...
 
 
 @dataclass(frozen=True)
@@ -113,7 +94,7 @@ def _robust_weights(r: np.ndarray) -> tuple[np.ndarray, float]:
 def estimate_session_drift(
     dynamic: Capture,
     canonical_from_session: np.ndarray,
-    mesh: CanonicalMesh,
+    mesh: RayCastMesh,
     part: np.ndarray,
     hand: np.ndarray,
     static: Capture,
@@ -153,12 +134,56 @@ def estimate_session_drift(
 def _estimate(
     dynamic: Capture,
     canonical_from_session: np.ndarray,
-    mesh: CanonicalMesh,
+    mesh: RayCastMesh,
     part: np.ndarray,
     hand: np.ndarray,
     static: Capture,
     config: SessionDriftConfig,
 ) -> SessionDrift:
+    t_count = dynamic.num_frames
+    ts = _check_inputs(dynamic, part, hand)
+    gravity = np.asarray(config.gravity, np.float64)
+    gravity = gravity / np.linalg.norm(gravity)
+    recorded = np.einsum("ij,tjk->tik", np.asarray(canonical_from_session, np.float64), np.asarray(dynamic.world_from_camera, np.float64))
+    pivot = recorded[0, :3, 3].copy()
+    excluded = [_excluded(part[t], hand[t], config.mask_dilation_px) for t in range(t_count)]
+    tri_normals = _triangle_normals(mesh)
+    own, anchored = _keypoints(dynamic, static, recorded, excluded, config)
+
+    drift = PoseDrift(pivot=pivot, t0_s=float(ts[0]))
+    for _ in range(config.iterations):
+        poses = drift.apply(recorded, ts)
+        basis = (pivot, gravity, ts)
+        sources = [_depth_rows(dynamic, mesh, tri_normals, poses, excluded, basis, config)]
+        keypoint_rows = _keypoint_rows(dynamic, poses, own, anchored, basis, config)
+        if keypoint_rows is not None:
+            sources.append(keypoint_rows)
+        step, weighted, residual, points = _weighted_step(sources, config.jackknife_blocks, t_count)
+        drift = PoseDrift(
+            pivot=pivot, t0_s=drift.t0_s,
+            rot0_rad=drift.rot0_rad + step[0:3], trans0_m=drift.trans0_m + step[3:6],
+            rot_rate_rad_per_s=drift.rot_rate_rad_per_s + step[6] * gravity,
+            trans_rate_m_per_s=drift.trans_rate_m_per_s + step[7:10],
+        )
+        if np.max(np.abs(step[:6])) < 1e-5 and np.max(np.abs(step[6:])) < 1e-6:
+            break
+    # Jackknife over blocks of frames at the last association.
+    cov = block_jackknife_cov(
+        *(np.concatenate([x[k] for x in weighted]) for k in (0, 2, 1, 3)), ridge=1e-9
+    )  # design, weights, rhs, block
+    rate_cov = None if cov is None else cov[6:, 6:]
+    z_ref = float(np.nanmedian(np.asarray(dynamic.depth[0], np.float64)))
+    ahead = pivot + (z_ref if np.isfinite(z_ref) else 2.0) * recorded[0, :3, 2]
+    significance = drift_significance(drift, ahead, float(ts[-1]), rate_cov, yaw_axis=gravity)
+    session_from_canonical = np.linalg.inv(np.asarray(canonical_from_session, np.float64))
+    return SessionDrift(
+        drift=drift.in_frame(session_from_canonical), drift_canonical=drift, significance=significance,
+        residual_m=residual, points=points, feature_rows=int(sum(len(x[1]) for x in weighted[1:])),
+    )
+
+
+def _check_inputs(dynamic: Capture, part: np.ndarray, hand: np.ndarray) -> np.ndarray:
+    """``[T]`` the recording's timestamps (seconds), once its masks and clock are usable."""
     t_count = dynamic.num_frames
     h, w = dynamic.rgb.shape[1:3]
     if np.shape(part) != (t_count, h, w) or np.shape(hand) != (t_count, h, w):
@@ -169,22 +194,26 @@ def _estimate(
     ts = np.asarray(dynamic.timestamps, np.float64)
     if t_count < 3 or ts[-1] <= ts[0]:
         raise InputError("estimate_session_drift: the drift needs at least 3 frames with increasing timestamps.")
-    gravity = np.asarray(config.gravity, np.float64)
-    gravity = gravity / np.linalg.norm(gravity)
-    recorded = np.einsum("ij,tjk->tik", np.asarray(canonical_from_session, np.float64), np.asarray(dynamic.world_from_camera, np.float64))
-    pivot = recorded[0, :3, 3].copy()
-    excluded = [_excluded(part[t], hand[t], config.mask_dilation_px) for t in range(t_count)]
-    dh, dw = dynamic.depth.shape[1:]
-    st = config.pixel_stride
-    vv, uu = np.mgrid[0:dh:st, 0:dw:st]
+    return ts
+
+
+def _triangle_normals(mesh: RayCastMesh) -> np.ndarray:
+    """``[F, 3]`` unit normals of the mesh's triangles."""
     tri_normals = np.cross(
         mesh.vertices[mesh.triangles[:, 1]] - mesh.vertices[mesh.triangles[:, 0]],
         mesh.vertices[mesh.triangles[:, 2]] - mesh.vertices[mesh.triangles[:, 0]],
     )
     tri_normals /= np.maximum(np.linalg.norm(tri_normals, axis=1, keepdims=True), 1e-12)
+    return tri_normals
 
-    # Keypoints: the recording's own pairs, and each frame against its nearest static frames
-    # (static keypoints lifted once into the canonical frame by the static depth and poses).
+
+def _keypoints(
+    dynamic: Capture, static: Capture, recorded: np.ndarray, excluded: list[np.ndarray], config: SessionDriftConfig
+) -> tuple[dict, dict]:
+    """Keypoints: the recording's own pairs ``{(i, j): (pixels_i, pixels_j)}``, and each frame against
+    its nearest static frames ``{t: (points [M, 3] canonical metres, pixels [M, 2])}`` (static
+    keypoints lifted once into the canonical frame by the static depth and poses)."""
+    t_count = dynamic.num_frames
     dyn_features, static_features = FeatureCache(dynamic.rgb), FeatureCache(static.rgb)
     own = {}
     for g in config.frame_gaps:
@@ -210,97 +239,108 @@ def _estimate(
                 pixels.append(pd[ok])
         if lifted:
             anchored[t] = (np.concatenate(lifted), np.concatenate(pixels))
+    return own, anchored
 
-    drift = PoseDrift(pivot=pivot, t0_s=float(ts[0]))
-    blocks = config.jackknife_blocks
-    for _ in range(config.iterations):
-        poses = drift.apply(recorded, ts)
-        sources = []
-        # depth against the mesh, projectively associated
-        rows, rhs, frames = [], [], []
-        for t in range(t_count):
-            k = np.asarray(dynamic.depth_intrinsics[t], np.float64)
-            z = np.asarray(dynamic.depth[t], np.float64)[::st, ::st]
-            ok = np.isfinite(z) & (z > 0) & (z < config.max_depth_m)
-            if dynamic.confidence is not None and config.min_confidence > 0:
-                ok &= np.asarray(dynamic.confidence[t])[::st, ::st] >= config.min_confidence
-            ex = cv2.resize(excluded[t].astype(np.uint8), (dw, dh), interpolation=cv2.INTER_NEAREST)[::st, ::st].astype(bool)
-            ok &= ~ex
-            _, rendered, tri = mesh.render(poses[t], k, dw, dh)
-            rendered, tri = np.asarray(rendered, np.float64)[::st, ::st][ok], tri[::st, ::st][ok]
-            zc = z[ok]
-            good = np.isfinite(rendered) & (np.abs(rendered - zc) < config.max_association_m)
-            if not np.any(good):
-                continue
-            cam = np.stack([(uu[ok][good] - k[2]) / k[0], (vv[ok][good] - k[3]) / k[1], np.ones(np.count_nonzero(good))], -1)
-            rays = cam @ poses[t][:3, :3].T
-            x = poses[t][:3, 3] + zc[good, None] * rays
-            q = poses[t][:3, 3] + rendered[good, None] * rays
-            n = tri_normals[tri[good]]
-            dt = ts[t] - ts[0]
-            arm = np.cross(x - pivot, n)
-            rows.append(np.concatenate([arm, n, dt * (arm @ gravity)[:, None], dt * n], 1))
-            rhs.append(np.sum((x - q) * n, 1))
-            frames.append(np.full(len(n), t))
-        if not rows or sum(len(r) for r in rhs) < 100:
-            raise InputError(
-                "estimate_session_drift: fewer than 100 unmasked depth points of the recording lie on the canonical "
-                "surface; check the registration, or leave pose_drift off."
-            )
-        sources.append((np.concatenate(rows), np.concatenate(rhs), np.concatenate(frames)))
-        # keypoints: static-anchored (all unknowns) and the recording's own pairs (the rate only)
-        rows, rhs, frames = [], [], []
-        for t, (lifted, pixels) in anchored.items():
-            centre = poses[t][:3, 3]
-            rays = pixel_rays(dynamic.rgb_intrinsics[t], pixels, poses[t])
-            dt = ts[t] - ts[0]
-            for m in ray_normals(rays):
-                arm = -np.cross(lifted - pivot, m)
-                rows.append(np.concatenate([arm, -m, dt * (arm @ gravity)[:, None], -dt * m], 1))
-                rhs.append(np.sum(m * (lifted - centre), 1))
-                frames.append(np.full(len(m), t))
-        for (i, j), (pi, pj) in own.items():
-            d = depth_at_pixels(dynamic, i, pi, min_confidence=config.min_confidence)
-            ok = np.isfinite(d) & (d > 0) & (d < config.max_depth_m)
-            if not np.any(ok):
-                continue
-            ray_i = pixel_rays(dynamic.rgb_intrinsics[i], pi[ok], poses[i])
-            x = poses[i][:3, 3] + d[ok, None] * ray_i
-            dt = ts[i] - ts[j]
-            for m in ray_normals(pixel_rays(dynamic.rgb_intrinsics[j], pj[ok], poses[j])):
-                arm = np.cross(x - pivot, m)
-                rows.append(np.concatenate([np.zeros((len(m), 6)), dt * (arm @ gravity)[:, None], dt * m], 1))
-                rhs.append(np.sum(m * (x - poses[j][:3, 3]), 1))
-                frames.append(np.full(len(m), i))
-        if rows:
-            sources.append((np.concatenate(rows), np.concatenate(rhs), np.concatenate(frames)))
-        hess, grad, weighted = np.zeros((10, 10)), np.zeros(10), []
-        for s_idx, (a_mat, r, fr) in enumerate(sources):
-            wts, spread = _robust_weights(r)
-            if s_idx == 0:
-                residual, points = spread, int(np.count_nonzero(wts))
-            hess += (a_mat * wts[:, None]).T @ a_mat
-            grad += (a_mat * wts[:, None]).T @ r
-            weighted.append((a_mat, r, wts, (fr * blocks) // t_count))
-        step = np.linalg.solve(hess + 1e-9 * np.eye(10), -grad)
-        drift = PoseDrift(
-            pivot=pivot, t0_s=drift.t0_s,
-            rot0_rad=drift.rot0_rad + step[0:3], trans0_m=drift.trans0_m + step[3:6],
-            rot_rate_rad_per_s=drift.rot_rate_rad_per_s + step[6] * gravity,
-            trans_rate_m_per_s=drift.trans_rate_m_per_s + step[7:10],
+
+def _depth_rows(
+    dynamic: Capture,
+    mesh: RayCastMesh,
+    tri_normals: np.ndarray,
+    poses: np.ndarray,
+    excluded: list[np.ndarray],
+    basis: tuple[np.ndarray, np.ndarray, np.ndarray],
+    config: SessionDriftConfig,
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Design rows ``[n, 10]``, right-hand sides ``[n]`` and frames ``[n]`` of the depth against the
+    mesh, projectively associated, at the current ``poses [T, 4, 4]``; ``basis`` is the drift's
+    pivot, gravity and the timestamps."""
+    pivot, gravity, ts = basis
+    dh, dw = dynamic.depth.shape[1:]
+    st = config.pixel_stride
+    vv, uu = np.mgrid[0:dh:st, 0:dw:st]
+    rows, rhs, frames = [], [], []
+    for t in range(dynamic.num_frames):
+        k = np.asarray(dynamic.depth_intrinsics[t], np.float64)
+        z = np.asarray(dynamic.depth[t], np.float64)[::st, ::st]
+        ok = np.isfinite(z) & (z > 0) & (z < config.max_depth_m)
+        if dynamic.confidence is not None and config.min_confidence > 0:
+            ok &= np.asarray(dynamic.confidence[t])[::st, ::st] >= config.min_confidence
+        ex = cv2.resize(excluded[t].astype(np.uint8), (dw, dh), interpolation=cv2.INTER_NEAREST)[::st, ::st].astype(bool)
+        ok &= ~ex
+        _, rendered, tri = mesh.render(poses[t], k, dw, dh)
+        rendered, tri = np.asarray(rendered, np.float64)[::st, ::st][ok], tri[::st, ::st][ok]
+        zc = z[ok]
+        good = np.isfinite(rendered) & (np.abs(rendered - zc) < config.max_association_m)
+        if not np.any(good):
+            continue
+        cam = np.stack([(uu[ok][good] - k[2]) / k[0], (vv[ok][good] - k[3]) / k[1], np.ones(np.count_nonzero(good))], -1)
+        rays = cam @ poses[t][:3, :3].T
+        x = poses[t][:3, 3] + zc[good, None] * rays
+        q = poses[t][:3, 3] + rendered[good, None] * rays
+        n = tri_normals[tri[good]]
+        dt = ts[t] - ts[0]
+        arm = np.cross(x - pivot, n)
+        rows.append(np.concatenate([arm, n, dt * (arm @ gravity)[:, None], dt * n], 1))
+        rhs.append(np.sum((x - q) * n, 1))
+        frames.append(np.full(len(n), t))
+    if not rows or sum(len(r) for r in rhs) < 100:
+        raise InputError(
+            "estimate_session_drift: fewer than 100 unmasked depth points of the recording lie on the canonical "
+            "surface; check the registration, or leave pose_drift off."
         )
-        if np.max(np.abs(step[:6])) < 1e-5 and np.max(np.abs(step[6:])) < 1e-6:
-            break
-    # Jackknife over blocks of frames at the last association.
-    cov = block_jackknife_cov(
-        *(np.concatenate([x[k] for x in weighted]) for k in (0, 2, 1, 3)), ridge=1e-9
-    )  # design, weights, rhs, block
-    rate_cov = None if cov is None else cov[6:, 6:]
-    z_ref = float(np.nanmedian(np.asarray(dynamic.depth[0], np.float64)))
-    ahead = pivot + (z_ref if np.isfinite(z_ref) else 2.0) * recorded[0, :3, 2]
-    significance = drift_significance(drift, ahead, float(ts[-1]), rate_cov, yaw_axis=gravity)
-    session_from_canonical = np.linalg.inv(np.asarray(canonical_from_session, np.float64))
-    return SessionDrift(
-        drift=drift.in_frame(session_from_canonical), drift_canonical=drift, significance=significance,
-        residual_m=residual, points=points, feature_rows=int(sum(len(x[1]) for x in weighted[1:])),
-    )
+    return np.concatenate(rows), np.concatenate(rhs), np.concatenate(frames)
+
+
+def _keypoint_rows(
+    dynamic: Capture,
+    poses: np.ndarray,
+    own: dict,
+    anchored: dict,
+    basis: tuple[np.ndarray, np.ndarray, np.ndarray],
+    config: SessionDriftConfig,
+) -> tuple[np.ndarray, np.ndarray, np.ndarray] | None:
+    """As :func:`_depth_rows`, for the keypoints: static-anchored (all unknowns) and the recording's
+    own pairs (the rate only); None when there are none."""
+    pivot, gravity, ts = basis
+    rows, rhs, frames = [], [], []
+    for t, (lifted, pixels) in anchored.items():
+        centre = poses[t][:3, 3]
+        rays = pixel_rays(dynamic.rgb_intrinsics[t], pixels, poses[t])
+        dt = ts[t] - ts[0]
+        for m in ray_normals(rays):
+            arm = -np.cross(lifted - pivot, m)
+            rows.append(np.concatenate([arm, -m, dt * (arm @ gravity)[:, None], -dt * m], 1))
+            rhs.append(np.sum(m * (lifted - centre), 1))
+            frames.append(np.full(len(m), t))
+    for (i, j), (pi, pj) in own.items():
+        d = depth_at_pixels(dynamic, i, pi, min_confidence=config.min_confidence)
+        ok = np.isfinite(d) & (d > 0) & (d < config.max_depth_m)
+        if not np.any(ok):
+            continue
+        ray_i = pixel_rays(dynamic.rgb_intrinsics[i], pi[ok], poses[i])
+        x = poses[i][:3, 3] + d[ok, None] * ray_i
+        dt = ts[i] - ts[j]
+        for m in ray_normals(pixel_rays(dynamic.rgb_intrinsics[j], pj[ok], poses[j])):
+            arm = np.cross(x - pivot, m)
+            rows.append(np.concatenate([np.zeros((len(m), 6)), dt * (arm @ gravity)[:, None], dt * m], 1))
+            rhs.append(np.sum(m * (x - poses[j][:3, 3]), 1))
+            frames.append(np.full(len(m), i))
+    if not rows:
+        return None
+    return np.concatenate(rows), np.concatenate(rhs), np.concatenate(frames)
+
+
+def _weighted_step(sources: list, blocks: int, t_count: int) -> tuple[np.ndarray, list, float, int]:
+    """One robustly weighted least-squares step ``[10]`` over every source's rows, the weighted rows
+    ``(design, rhs, weights, block)`` per source, and the depth source's (the first) robust spread
+    (metres) and count of points with weight."""
+    hess, grad, weighted = np.zeros((10, 10)), np.zeros(10), []
+    for s_idx, (a_mat, r, fr) in enumerate(sources):
+        wts, spread = _robust_weights(r)
+        if s_idx == 0:
+            residual, points = spread, int(np.count_nonzero(wts))
+        hess += (a_mat * wts[:, None]).T @ a_mat
+        grad += (a_mat * wts[:, None]).T @ r
+        weighted.append((a_mat, r, wts, (fr * blocks) // t_count))
+    step = np.linalg.solve(hess + 1e-9 * np.eye(10), -grad)
+    return step, weighted, residual, points

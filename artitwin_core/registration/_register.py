@@ -28,6 +28,7 @@ from scipy.spatial import cKDTree
 from artitwin_core._errors import InputError
 from artitwin_core.capture import Capture
 from artitwin_core.registration._clouds import frame_points, fused_cloud
+from artitwin_core.registration._config import RegistrationConfig
 from artitwin_core.registration._evidence import (
     ScoringData,
     depth_views,
@@ -40,7 +41,6 @@ from artitwin_core.registration._photometric import photometric_refine
 from artitwin_core.registration._texture import luminance, surface_groups
 from artitwin_core.registration._types import (
     HypothesisScore,
-    RegistrationConfig,
     RegistrationError,
     RegistrationResult,
 )
@@ -152,128 +152,11 @@ def register_recordings(
 
     n_dyn = dynamic.num_frames
     keep = np.where(np.arange(n_dyn) < max(1, n_dyn // 3), 1.0, 1.0 / max(cfg.early_frame_weight, 1.0))
-    common = dict(stride=cfg.pixel_stride, max_depth_m=cfg.max_depth_m, min_confidence=cfg.min_confidence)
-    clouds: dict[float, tuple] = {}
-    targets: dict[float, PlaneTarget] = {}
-    finest = min(cfg.icp_voxels_m)
-    base_s = fused_cloud(static, range(static.num_frames), voxel_m=finest, **common)
-    base_d = fused_cloud(dynamic, range(n_dyn), voxel_m=finest, keep_fraction=keep, **common)
-
-    # Normals from neighbourhoods wide enough for the depth noise: a plane fitted within 3 voxels
-    # of a surface whose noise is comparable tilts with the noise, and point-to-plane ICP then
-    # slides (high-noise, sigma ~15 mm: 15 mm off at the furniture with 3 cm neighbourhoods).
-    noise = _surface_noise_m(base_s, finest) if cfg.normal_noise_radii > 0 else 0.0
-
-    def at(voxel: float):
-        if voxel not in clouds:
-            s = base_s if voxel == finest else base_s.voxel_down_sample(voxel)
-            d = base_d if voxel == finest else base_d.voxel_down_sample(voxel)
-            radius = max(3 * voxel, cfg.normal_noise_radii * noise)
-            for c in (s, d):
-                c.estimate_normals(o3d.geometry.KDTreeSearchParamHybrid(radius=radius, max_nn=int(30 * (radius / (3 * voxel)) ** 2)))
-            clouds[voxel] = (s, d)
-        return clouds[voxel]
-
-    def target(voxel: float) -> PlaneTarget:
-        if voxel not in targets:
-            s, _ = at(voxel)
-            targets[voxel] = PlaneTarget.of(np.asarray(s.points), np.asarray(s.normals))
-        return targets[voxel]
-
-    def icp(voxel: float, init: np.ndarray):
-        _, d = at(voxel)
-        return gravity_icp(np.asarray(d.points), target(voxel), init, up, max_distance_m=2.5 * voxel, kernel_m=1.5 * voxel)
-
-    diagnostics["fuse"] = {"seconds": time.perf_counter() - t0, "static_points": len(base_s.points),
-                           "dynamic_points": len(base_d.points), "surface_noise_m": noise}
-
-    # Global: hypotheses from the recorded poses and the yaw sweep, each refined (yaw and
-    # translation only) on the coarse clouds and scored against what the static recording saw.
-    t1 = time.perf_counter()
-    gs, gd = at(cfg.icp_voxels_m[0])
-    view_args = dict(stride=2 * cfg.pixel_stride, max_depth_m=cfg.max_depth_m, min_confidence=cfg.min_confidence)
-    cands = yaw_candidates(
-        np.asarray(gs.points), np.asarray(gs.normals), np.asarray(gd.points), np.asarray(gd.normals), g,
-        yaw_step_deg=cfg.yaw_step_deg, cell_m=cfg.grid_cell_m, height_bin_m=cfg.height_bin_m,
-        num_slabs=cfg.num_slabs, num_candidates=cfg.num_candidates, peaks_per_yaw=cfg.peaks_per_yaw,
-    )
-    hypotheses = pose_hypotheses(static.world_from_camera, dynamic.world_from_camera, g)
-    hypotheses += [(f"yaw sweep {c.yaw_deg:.0f} deg" + (f", peak {c.peak + 1}" if c.peak else ""), c.canonical_from_session)
-                   for c in cands]
-    scored_frames = evenly_spaced(n_dyn, cfg.score_views)
-    # Matched at the third level: normals fine enough for the point-to-plane inlier test.
-    surface_voxel = cfg.icp_voxels_m[min(2, len(cfg.icp_voxels_m) - 1)]
-    surface = target(surface_voxel)
-    scored_points = [frame_points(dynamic, int(t), **view_args) for t in scored_frames]
-    data = ScoringData(
-        static_surface=surface,
-        static_views=depth_views(static, cfg.score_views, **view_args),
-        static_points=np.asarray(at(cfg.icp_voxels_m[min(1, len(cfg.icp_voxels_m) - 1)])[0].points),
-        dynamic_points=tuple(p for p, _ in scored_points),
-        dynamic_views=depth_views(dynamic, cfg.score_views, **view_args),
-        frame_weights=keep[scored_frames],
-        static_luminance=luminance(np.asarray(at(surface_voxel)[0].colors)),
-        static_groups=surface_groups(surface.points, surface.normals, up),
-        dynamic_luminance=tuple(luminance(c) for _, c in scored_points),
-    )
-
-    def score(name: str, m: np.ndarray) -> HypothesisScore:
-        return score_hypothesis(name, m, data, up, inlier_m=cfg.inlier_distance_m, margin_m=cfg.free_space_margin_m)
-
-    scored = []
-    for name, m in hypotheses:
-        for voxel in cfg.icp_voxels_m[:2]:
-            m = icp(voxel, m).transform
-        scored.append(score(name, m))
-    scored.sort(key=lambda h: h.support, reverse=True)
-    distinct = _distinct(scored, np.asarray(gd.points), cfg.distinct_hypothesis_m)
-    rival = _rival(distinct, np.asarray(gd.points), cfg)
-    best = distinct[0]
-    transform = best.canonical_from_session
-    diagnostics["global"] = {
-        "seconds": time.perf_counter() - t1,
-        "chosen": best.name,
-        "yaw_deg": _yaw_deg(transform, up),
-        "hypotheses": [h.as_dict() for h in scored],
-    }
-    failed = _refusals(best, rival, cfg)
-    diagnostics["verdict"] = {"failed": list(failed), "rival": rival.name if rival else None,
-                              "rival_support": rival.support if rival else None, "rival_ratio": _ratio(best, rival)}
-    if failed and cfg.refuse_unconvincing:
-        raise RegistrationError(_refusal_message(best, rival, failed, cfg), tuple(distinct), tuple(failed))
-
-    # Frames in which the part has not moved yet agree with the static scene everywhere; frames
-    # with the part open see new surface (the moved part, the inside). Those new surfaces lie
-    # next to static ones (a door near its hinge), inside the robust kernel's reach, and bias the
-    # fine alignment by a centimetre or two, so the fine stages use the consistent frames only.
-    t_sel = time.perf_counter()
-    static_tree = cKDTree(np.asarray(gs.points))
-    frames = _consistent_frames(static_tree, dynamic, transform, cfg)
-    if len(frames) < n_dyn:
-        base_d = fused_cloud(dynamic, frames, voxel_m=finest, **common)
-        clouds.clear()
-        targets.clear()
-    diagnostics["frames"] = {"seconds": time.perf_counter() - t_sel, "used": [int(t) for t in frames],
-                             "dynamic_points": len(base_d.points)}
-
-    for voxel in cfg.icp_voxels_m[2:]:
-        t2 = time.perf_counter()
-        r = icp(voxel, transform)
-        transform = r.transform
-        diagnostics[f"icp_{voxel:g}"] = {"seconds": time.perf_counter() - t2, "fitness": r.fitness,
-                                         "inlier_rmse_m": r.inlier_rmse, "iterations": r.iterations}
-    if cfg.max_tilt_deg > 0:
-        t2 = time.perf_counter()
-        voxel = cfg.icp_voxels_m[-1]
-        transform, diagnostics["tilt"] = _tilt(np.asarray(at(voxel)[1].points), target(voxel), transform, up, voxel, cfg)
-        diagnostics["tilt"]["seconds"] = time.perf_counter() - t2
-
-    if cfg.photometric_blur_rad:
-        t3 = time.perf_counter()
-        voxel = cfg.icp_voxels_m[-1]
-        transform, diagnostics["photometric"] = _photometric(
-            static, dynamic, frames, np.asarray(at(voxel)[1].points), target(voxel), transform, score, up, voxel, cfg)
-        diagnostics["photometric"]["seconds"] = time.perf_counter() - t3
+    clouds = _Clouds(static, dynamic, keep, up, cfg)
+    diagnostics["fuse"] = {"seconds": time.perf_counter() - t0, "static_points": len(clouds.base_s.points),
+                           "dynamic_points": len(clouds.base_d.points), "surface_noise_m": clouds.noise}
+    best, rival, distinct, score = _global_placement(static, dynamic, clouds, g, up, keep, cfg, diagnostics)
+    transform = _fine_placement(static, dynamic, clouds, best.canonical_from_session, score, up, cfg, diagnostics)
 
     final = score(best.name, transform)
     tilt_deg = float(np.rad2deg(tilt_of(transform, up)))
@@ -284,12 +167,12 @@ def register_recordings(
     diagnostics["verdict"]["failed"] += failed
     if failed and cfg.refuse_unconvincing:
         raise RegistrationError(_refusal_message(final, rival, failed, cfg), (final, *distinct[1:]), tuple(failed))
-    s, d = at(finest)
+    s, d = clouds.at(clouds.finest)
     residual, inliers = _point_to_plane_stats(d, s, transform, cfg.inlier_distance_m)
     covariance = None
     if cfg.uncertainty_blocks >= 3:
         t4 = time.perf_counter()
-        covariance = _block_jackknife(d, s, np.asarray(transform), finest, cfg.uncertainty_blocks)
+        covariance = _block_jackknife(d, s, np.asarray(transform), clouds.finest, cfg.uncertainty_blocks)
         diagnostics["uncertainty"] = {"seconds": time.perf_counter() - t4, "blocks": cfg.uncertainty_blocks}
     diagnostics["total_seconds"] = time.perf_counter() - t0
     return RegistrationResult(
@@ -301,6 +184,175 @@ def register_recordings(
         hypotheses=tuple(distinct),
         tilt_deg=tilt_deg,
     )
+
+
+class _Clouds:
+    """Both recordings' depth fused into clouds, with normals and plane targets at each ICP voxel
+    size made on first use and kept (refusing the dynamic cloud from fewer frames clears them)."""
+
+    def __init__(self, static: Capture, dynamic: Capture, keep: np.ndarray, up: np.ndarray, cfg: RegistrationConfig):
+        self.cfg, self.up = cfg, up
+        self.common = dict(stride=cfg.pixel_stride, max_depth_m=cfg.max_depth_m, min_confidence=cfg.min_confidence)
+        self.clouds: dict[float, tuple] = {}
+        self.targets: dict[float, PlaneTarget] = {}
+        self.finest = min(cfg.icp_voxels_m)
+        self.base_s = fused_cloud(static, range(static.num_frames), voxel_m=self.finest, **self.common)
+        self.base_d = fused_cloud(dynamic, range(dynamic.num_frames), voxel_m=self.finest, keep_fraction=keep, **self.common)
+        # Normals from neighbourhoods wide enough for the depth noise: a plane fitted within 3 voxels
+        # of a surface whose noise is comparable tilts with the noise, and point-to-plane ICP then
+        # slides (high-noise, sigma ~15 mm: 15 mm off at the furniture with 3 cm neighbourhoods).
+        self.noise = _surface_noise_m(self.base_s, self.finest) if cfg.normal_noise_radii > 0 else 0.0
+
+    def at(self, voxel: float):
+        """The static and dynamic clouds at ``voxel`` metres, with normals."""
+        if voxel not in self.clouds:
+            s = self.base_s if voxel == self.finest else self.base_s.voxel_down_sample(voxel)
+            d = self.base_d if voxel == self.finest else self.base_d.voxel_down_sample(voxel)
+            radius = max(3 * voxel, self.cfg.normal_noise_radii * self.noise)
+            for c in (s, d):
+                c.estimate_normals(o3d.geometry.KDTreeSearchParamHybrid(radius=radius, max_nn=int(30 * (radius / (3 * voxel)) ** 2)))
+            self.clouds[voxel] = (s, d)
+        return self.clouds[voxel]
+
+    def target(self, voxel: float) -> PlaneTarget:
+        """The static cloud at ``voxel`` as a point-to-plane target."""
+        if voxel not in self.targets:
+            s, _ = self.at(voxel)
+            self.targets[voxel] = PlaneTarget.of(np.asarray(s.points), np.asarray(s.normals))
+        return self.targets[voxel]
+
+    def icp(self, voxel: float, init: np.ndarray):
+        """Gravity-constrained ICP of the dynamic cloud onto the static one at ``voxel``."""
+        _, d = self.at(voxel)
+        return gravity_icp(np.asarray(d.points), self.target(voxel), init, self.up, max_distance_m=2.5 * voxel, kernel_m=1.5 * voxel)
+
+    def refuse_dynamic(self, dynamic: Capture, frames) -> None:
+        """Fuse the dynamic cloud again from ``frames`` only."""
+        self.base_d = fused_cloud(dynamic, frames, voxel_m=self.finest, **self.common)
+        self.clouds.clear()
+        self.targets.clear()
+
+
+def _global_placement(
+    static: Capture,
+    dynamic: Capture,
+    clouds: _Clouds,
+    g: np.ndarray,
+    up: np.ndarray,
+    keep: np.ndarray,
+    cfg: RegistrationConfig,
+    diagnostics: dict,
+):
+    """Global: hypotheses from the recorded poses and the yaw sweep, each refined (yaw and
+    translation only) on the coarse clouds and scored against what the static recording saw.
+
+    Returns the best distinct hypothesis, its rival (or None), the distinct hypotheses and the
+    scoring function; raises :class:`RegistrationError` when the best is not convincing."""
+    t1 = time.perf_counter()
+    gs, gd = clouds.at(cfg.icp_voxels_m[0])
+    cands = yaw_candidates(
+        np.asarray(gs.points), np.asarray(gs.normals), np.asarray(gd.points), np.asarray(gd.normals), g,
+        yaw_step_deg=cfg.yaw_step_deg, cell_m=cfg.grid_cell_m, height_bin_m=cfg.height_bin_m,
+        num_slabs=cfg.num_slabs, num_candidates=cfg.num_candidates, peaks_per_yaw=cfg.peaks_per_yaw,
+    )
+    hypotheses = pose_hypotheses(static.world_from_camera, dynamic.world_from_camera, g)
+    hypotheses += [(f"yaw sweep {c.yaw_deg:.0f} deg" + (f", peak {c.peak + 1}" if c.peak else ""), c.canonical_from_session)
+                   for c in cands]
+    data = _scoring_data(static, dynamic, clouds, up, keep, cfg)
+
+    def score(name: str, m: np.ndarray) -> HypothesisScore:
+        return score_hypothesis(name, m, data, up, inlier_m=cfg.inlier_distance_m, margin_m=cfg.free_space_margin_m)
+
+    scored = []
+    for name, m in hypotheses:
+        for voxel in cfg.icp_voxels_m[:2]:
+            m = clouds.icp(voxel, m).transform
+        scored.append(score(name, m))
+    scored.sort(key=lambda h: h.support, reverse=True)
+    distinct = _distinct(scored, np.asarray(gd.points), cfg.distinct_hypothesis_m)
+    rival = _rival(distinct, np.asarray(gd.points), cfg)
+    best = distinct[0]
+    diagnostics["global"] = {
+        "seconds": time.perf_counter() - t1,
+        "chosen": best.name,
+        "yaw_deg": _yaw_deg(best.canonical_from_session, up),
+        "hypotheses": [h.as_dict() for h in scored],
+    }
+    failed = _refusals(best, rival, cfg)
+    diagnostics["verdict"] = {"failed": list(failed), "rival": rival.name if rival else None,
+                              "rival_support": rival.support if rival else None, "rival_ratio": _ratio(best, rival)}
+    if failed and cfg.refuse_unconvincing:
+        raise RegistrationError(_refusal_message(best, rival, failed, cfg), tuple(distinct), tuple(failed))
+    return best, rival, distinct, score
+
+
+def _scoring_data(
+    static: Capture, dynamic: Capture, clouds: _Clouds, up: np.ndarray, keep: np.ndarray, cfg: RegistrationConfig
+) -> ScoringData:
+    """What a hypothesis is scored against: the static surface and views, a few dynamic frames."""
+    view_args = dict(stride=2 * cfg.pixel_stride, max_depth_m=cfg.max_depth_m, min_confidence=cfg.min_confidence)
+    scored_frames = evenly_spaced(dynamic.num_frames, cfg.score_views)
+    # Matched at the third level: normals fine enough for the point-to-plane inlier test.
+    surface_voxel = cfg.icp_voxels_m[min(2, len(cfg.icp_voxels_m) - 1)]
+    surface = clouds.target(surface_voxel)
+    scored_points = [frame_points(dynamic, int(t), **view_args) for t in scored_frames]
+    return ScoringData(
+        static_surface=surface,
+        static_views=depth_views(static, cfg.score_views, **view_args),
+        static_points=np.asarray(clouds.at(cfg.icp_voxels_m[min(1, len(cfg.icp_voxels_m) - 1)])[0].points),
+        dynamic_points=tuple(p for p, _ in scored_points),
+        dynamic_views=depth_views(dynamic, cfg.score_views, **view_args),
+        frame_weights=keep[scored_frames],
+        static_luminance=luminance(np.asarray(clouds.at(surface_voxel)[0].colors)),
+        static_groups=surface_groups(surface.points, surface.normals, up),
+        dynamic_luminance=tuple(luminance(c) for _, c in scored_points),
+    )
+
+
+def _fine_placement(
+    static: Capture,
+    dynamic: Capture,
+    clouds: _Clouds,
+    transform: np.ndarray,
+    score,
+    up: np.ndarray,
+    cfg: RegistrationConfig,
+    diagnostics: dict,
+) -> np.ndarray:
+    """The global placement ``transform`` refined on the consistent frames: full ICP at the finer
+    voxel sizes, then the tilt and the photometric refinement where configured."""
+    # Frames in which the part has not moved yet agree with the static scene everywhere; frames
+    # with the part open see new surface (the moved part, the inside). Those new surfaces lie
+    # next to static ones (a door near its hinge), inside the robust kernel's reach, and bias the
+    # fine alignment by a centimetre or two, so the fine stages use the consistent frames only.
+    t_sel = time.perf_counter()
+    static_tree = cKDTree(np.asarray(clouds.at(cfg.icp_voxels_m[0])[0].points))
+    frames = _consistent_frames(static_tree, dynamic, transform, cfg)
+    if len(frames) < dynamic.num_frames:
+        clouds.refuse_dynamic(dynamic, frames)
+    diagnostics["frames"] = {"seconds": time.perf_counter() - t_sel, "used": [int(t) for t in frames],
+                             "dynamic_points": len(clouds.base_d.points)}
+
+    for voxel in cfg.icp_voxels_m[2:]:
+        t2 = time.perf_counter()
+        r = clouds.icp(voxel, transform)
+        transform = r.transform
+        diagnostics[f"icp_{voxel:g}"] = {"seconds": time.perf_counter() - t2, "fitness": r.fitness,
+                                         "inlier_rmse_m": r.inlier_rmse, "iterations": r.iterations}
+    if cfg.max_tilt_deg > 0:
+        t2 = time.perf_counter()
+        voxel = cfg.icp_voxels_m[-1]
+        transform, diagnostics["tilt"] = _tilt(np.asarray(clouds.at(voxel)[1].points), clouds.target(voxel), transform, up, voxel, cfg)
+        diagnostics["tilt"]["seconds"] = time.perf_counter() - t2
+
+    if cfg.photometric_blur_rad:
+        t3 = time.perf_counter()
+        voxel = cfg.icp_voxels_m[-1]
+        transform, diagnostics["photometric"] = _photometric(
+            static, dynamic, frames, np.asarray(clouds.at(voxel)[1].points), clouds.target(voxel), transform, score, up,
+            voxel, cfg)
+        diagnostics["photometric"]["seconds"] = time.perf_counter() - t3
+    return transform
 
 
 def _tilt(points: np.ndarray, target: PlaneTarget, transform: np.ndarray, up: np.ndarray, voxel: float,

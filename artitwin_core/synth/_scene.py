@@ -241,15 +241,34 @@ def handle_mesh(shape: str, vertical: bool, length: float, cx: float, face_z: fl
 def build_scene(spec: SceneSpec) -> SceneModel:
     """The geometry of ``spec``'s scene, parts closed. Deterministic in ``spec.seed``."""
     rng = sub_rng(spec.seed, "layout")
-    low = spec.texture == "low-texture"
     w, h, d = spec.size_m
-    hw, t = w / 2, BOARD_M
-    front_m = spec.front_thickness_m
-    objects: list[SceneObject] = []
-    parts: list[Part] = []
-    effects = spec.resolved_effects
+    objects = _room(spec, rng)
+    cab = _Cabinet(spec, rng, objects)
+    split = _add_carcass(cab)
+    if spec.furniture == "door":
+        _add_door(cab, 0.0, h)
+    elif spec.furniture == "drawer":
+        _add_drawer(cab, split, h, moving=True)
+        _add_drawer(cab, 0.0, split, moving=False)
+    else:
+        _add_door(cab, split, h)
+        _add_drawer(cab, 0.0, split, moving=True)
 
-    # Room: floor, ceiling, four walls with posters. Each wall's local x, y span its plane.
+    return SceneModel(
+        objects=objects,
+        parts=cab.parts,
+        look_at=np.array([0.0, 0.55 * h, -0.1 * d]),
+        light=np.array([0.7, CEILING_M - 0.15, 1.8]),
+        size_m=(w, h, d),
+    )
+
+
+def _room(spec: SceneSpec, rng: np.random.Generator) -> list[SceneObject]:
+    """Room: floor, ceiling, four walls with posters, and a crate beside the cabinet. Each wall's
+    local x, y span its plane."""
+    w, h, d = spec.size_m
+    hw = w / 2
+    objects: list[SceneObject] = []
     floor_v, floor_t = boxes([((-ROOM_HALF_WIDTH_M, -0.05, -d - 0.1), (ROOM_HALF_WIDTH_M, 0.0, ROOM_FRONT_Z_M))])
     objects.append(SceneObject("floor", floor_v, floor_t, "floor", {
         "color_a": [0.55, 0.40, 0.25], "color_b": [0.30, 0.20, 0.12], "seed": int(rng.integers(1 << 20))},
@@ -287,9 +306,34 @@ def build_scene(spec: SceneSpec) -> SceneModel:
         "color": [0.2, 0.35, 0.55], "color_b": [0.75, 0.6, 0.3], "seed": int(rng.integers(1 << 20)), "freq": 8.0},
         STATIC_LABEL, make_se3(axis_angle_to_matrix(UP, float(rng.uniform(-0.5, 0.5))),
                                [side * (hw + 0.45), 0, -d + cs[2] / 2 + 0.05])))
+    return objects
 
-    # Cabinet carcass: open-fronted box, front face at z = 0.
-    tex, tex_params = _wood_params(rng, low)
+
+@dataclass
+class _Cabinet:
+    """The cabinet being built: the spec, the layout's random stream (drawn from in build order),
+    the scene's objects and parts so far, and the carcass's wood."""
+
+    spec: SceneSpec
+    rng: np.random.Generator
+    objects: list[SceneObject]
+    parts: list[Part] = field(default_factory=list)
+    tex: str = ""
+    tex_params: dict = field(default_factory=dict)
+    metal: dict = field(default_factory=lambda: {"color": [0.55, 0.56, 0.58], "seed": 3})
+
+    def __post_init__(self) -> None:
+        self.low = self.spec.texture == "low-texture"
+        self.effects = self.spec.resolved_effects
+
+
+def _add_carcass(cab: _Cabinet) -> float | None:
+    """Cabinet carcass: open-fronted box, front face at z = 0, with a divider where the furniture
+    has two parts. Returns the divider's height (metres; None: no divider)."""
+    spec = cab.spec
+    w, h, d = spec.size_m
+    hw, t = w / 2, BOARD_M
+    cab.tex, cab.tex_params = _wood_params(cab.rng, cab.low)
     split = {"door": None, "drawer": 0.5 * h, "door+drawer": 0.3 * h}[spec.furniture]
     carcass = [
         ((-hw, 0, -d), (-hw + t, h, 0)), ((hw - t, 0, -d), (hw, h, 0)),
@@ -299,112 +343,115 @@ def build_scene(spec: SceneSpec) -> SceneModel:
     if split is not None:
         carcass.append(((-hw + t, split - t / 2, -d + t), (hw - t, split + t / 2, 0)))
     v, tr = boxes(carcass)
-    objects.append(SceneObject("cabinet", v, tr, tex, tex_params, STATIC_LABEL))
-    metal = {"color": [0.55, 0.56, 0.58], "seed": 3}
+    cab.objects.append(SceneObject("cabinet", v, tr, cab.tex, cab.tex_params, STATIC_LABEL))
+    return split
 
-    def add_door(y0: float, y1: float) -> None:
-        k = len(parts)
-        hinge = float(rng.choice([-1.0, 1.0]))  # -1: hinge on the left edge (x = -w/2)
-        axis = np.array([0.0, hinge, 0.0])  # positive q swings the free edge outwards (+z)
-        gap = spec.hinge_gap_m
-        pivot = np.array([hinge * (hw - gap), (y0 + y1) / 2, 0.0])
-        pose = make_se3(np.eye(3), pivot)
-        # Door in its local frame: hinge line at x = 0, free edge towards x = -hinge * w.
-        xs = sorted([0.0, -hinge * (w - 0.003 - gap)])
-        dv, dt = boxes([((xs[0], y0 + 0.002 - pivot[1], 0), (xs[1], y1 - 0.002 - pivot[1], front_m))])
-        dtex, dparams = _wood_params(rng, low)
-        objects.append(SceneObject("door", dv, dt, dtex, dparams, k, pose))
-        hx = -hinge * (w - gap - 0.07)
-        length = min(0.16, 0.4 * (y1 - y0)) if spec.handle != "long-bar" else min(0.6, 0.7 * (y1 - y0))
-        handle, grip_z = handle_mesh(spec.handle, True, length, hx, front_m)
-        if handle is not None:
-            objects.append(SceneObject("door_handle", *handle, "solid", metal, k, pose))
-        if spec.shelves:
-            # Boards set back from the front, clear of the door's back face.
-            step = (y1 - y0) / (spec.shelves + 1)
-            ys = [y0 + step * (i + 1) for i in range(spec.shelves)]
-            sv, st = boxes([((-hw + t, y - t / 2, -d + t), (hw - t, y + t / 2, -0.02)) for y in ys])
-            objects.append(SceneObject("shelves", sv, st, tex, tex_params, STATIC_LABEL))
-        if spec.interior_items:
-            floor_y = y0 + (t / 2 if y0 > 0 else t)
-            lo, hi = np.array([-hw + t, y0, -d + t]), np.array([hw - t, y1 - t, 0])
-            if spec.shelves:  # the bottom level ends under the first shelf; then one level per shelf
-                levels = [floor_y] + [y + t / 2 for y in ys]
-                tops = [y - t / 2 for y in ys] + [y1 - t]
-            else:
-                levels, tops = [floor_y], [hi[1]]
-            for i, (ly, ty) in enumerate(zip(levels, tops, strict=True)):
-                objects.extend(_interior_items(
-                    sub_rng(spec.seed, "door_items" if i == 0 else f"door_items{i}"),
-                    lo, np.array([hi[0], ty, hi[2]]), STATIC_LABEL, "shelf" if i == 0 else f"shelf{i}", ly,
-                ))
-        part = Part(
-            "door", "revolute", axis, pivot, float(spec.door_open_rad),
-            grip=pivot + [hx, 0, grip_z], front=np.array([0.0, 0.0, 1.0]),
-            handle_dir=UP.copy(), d_free=np.array([-hinge, 0.0, 0.0]),
-        )
-        if "screw_joint" in effects:
-            # Rise along gravity-up: the signed pitch is along the joint axis.
-            part.pitch = float(effects["screw_joint"]["rise_m_per_rad"]) * float(np.dot(axis, UP))
-        if "axis_sag" in effects:
-            part.sag_rad = float(effects["axis_sag"]["angle_rad"])
-        parts.append(part)
 
-    def add_drawer(y0: float, y1: float, moving: bool) -> None:
-        k = len(parts) if moving else STATIC_LABEL
-        name = "drawer" if moving else "drawer_fixed"
-        ymid = (y0 + y1) / 2
-        pivot = np.array([0.0, ymid, front_m])
-        pose = make_se3(np.eye(3), pivot)
-        fv, ft = boxes([((-hw + 0.003, y0 + 0.003 - ymid, -front_m), (hw - 0.003, y1 - 0.003 - ymid, 0))])
-        ftex, fparams = _wood_params(rng, low)
-        objects.append(SceneObject(f"{name}_front", fv, ft, ftex, fparams, k, pose))
-        length = min(0.25, 0.4 * w) if spec.handle != "long-bar" else min(0.7, 0.8 * w)
-        handle, grip_z = handle_mesh(spec.handle, False, length, 0.0, 0.0)
-        if handle is not None:
-            objects.append(SceneObject(f"{name}_handle", *handle, "solid", metal, k, pose))
-        if not moving:
-            return
-        # The drawer box behind its front, in the same local frame (origin at the front's face).
-        bt, x0, x1 = 0.012, -hw + t + 0.004, hw - t - 0.004
-        # Clear of the board below (the carcass bottom, or half a divider).
-        yb0, yb1 = y0 + (t if y0 == 0 else t / 2) + 0.004 - ymid, y1 - 0.03 - ymid
-        zb0, zb1 = -(d - t - 0.01) - front_m, -front_m
-        bv, btr = boxes([
-            ((x0, yb0, zb0), (x1, yb0 + bt, zb1)), ((x0, yb0, zb0), (x0 + bt, yb1, zb1)),
-            ((x1 - bt, yb0, zb0), (x1, yb1, zb1)), ((x0, yb0, zb0), (x1, yb1, zb0 + bt)),
-        ])
-        btex, bparams = _wood_params(rng, low)
-        objects.append(SceneObject("drawer_box", bv, btr, btex, bparams, k, pose))
-        if spec.interior_items:
-            items = _interior_items(sub_rng(spec.seed, "drawer_items"), np.array([x0 + bt, yb0, zb0 + bt]),
-                                    np.array([x1 - bt, yb1, zb1]), k, "drawer_item", yb0 + bt)
-            for it in items:  # contents ride with the drawer, so they carry its label
-                it.world_from_local = pose @ it.world_from_local
-            objects.extend(items)
-        part = Part(
-            "drawer", "prismatic", np.array([0.0, 0.0, 1.0]), pivot.copy(), float(spec.drawer_open_m),
-            grip=pivot + [0, 0, grip_z], front=np.array([0.0, 0.0, 1.0]),
-            handle_dir=np.array([1.0, 0.0, 0.0]),
-            tilt_pivot=pivot + [0, yb0, zb0],
-        )
-        if "drawer_tilt" in effects:
-            part.tilt_rad = float(effects["drawer_tilt"]["angle_rad"])
-        parts.append(part)
-
-    if spec.furniture == "door":
-        add_door(0.0, h)
-    elif spec.furniture == "drawer":
-        add_drawer(split, h, moving=True)
-        add_drawer(0.0, split, moving=False)
-    else:
-        add_door(split, h)
-        add_drawer(0.0, split, moving=True)
-
-    return SceneModel(
-        objects=objects,
-        parts=parts,
-        look_at=np.array([0.0, 0.55 * h, -0.1 * d]),
-        light=np.array([0.7, CEILING_M - 0.15, 1.8]),
-        size_m=(w, h, d),
+def _add_door(cab: _Cabinet, y0: float, y1: float) -> None:
+    """A door hinged on a random side, covering the cabinet from ``y0`` to ``y1`` metres, with its
+    handle, and shelves and contents behind it."""
+    spec, rng, objects = cab.spec, cab.rng, cab.objects
+    w = spec.size_m[0]
+    hw, front_m = w / 2, spec.front_thickness_m
+    k = len(cab.parts)
+    hinge = float(rng.choice([-1.0, 1.0]))  # -1: hinge on the left edge (x = -w/2)
+    axis = np.array([0.0, hinge, 0.0])  # positive q swings the free edge outwards (+z)
+    gap = spec.hinge_gap_m
+    pivot = np.array([hinge * (hw - gap), (y0 + y1) / 2, 0.0])
+    pose = make_se3(np.eye(3), pivot)
+    # Door in its local frame: hinge line at x = 0, free edge towards x = -hinge * w.
+    xs = sorted([0.0, -hinge * (w - 0.003 - gap)])
+    dv, dt = boxes([((xs[0], y0 + 0.002 - pivot[1], 0), (xs[1], y1 - 0.002 - pivot[1], front_m))])
+    dtex, dparams = _wood_params(rng, cab.low)
+    objects.append(SceneObject("door", dv, dt, dtex, dparams, k, pose))
+    hx = -hinge * (w - gap - 0.07)
+    length = min(0.16, 0.4 * (y1 - y0)) if spec.handle != "long-bar" else min(0.6, 0.7 * (y1 - y0))
+    handle, grip_z = handle_mesh(spec.handle, True, length, hx, front_m)
+    if handle is not None:
+        objects.append(SceneObject("door_handle", *handle, "solid", cab.metal, k, pose))
+    _add_door_interior(cab, y0, y1)
+    part = Part(
+        "door", "revolute", axis, pivot, float(spec.door_open_rad),
+        grip=pivot + [hx, 0, grip_z], front=np.array([0.0, 0.0, 1.0]),
+        handle_dir=UP.copy(), d_free=np.array([-hinge, 0.0, 0.0]),
     )
+    if "screw_joint" in cab.effects:
+        # Rise along gravity-up: the signed pitch is along the joint axis.
+        part.pitch = float(cab.effects["screw_joint"]["rise_m_per_rad"]) * float(np.dot(axis, UP))
+    if "axis_sag" in cab.effects:
+        part.sag_rad = float(cab.effects["axis_sag"]["angle_rad"])
+    cab.parts.append(part)
+
+
+def _add_door_interior(cab: _Cabinet, y0: float, y1: float) -> None:
+    """Shelves behind a door from ``y0`` to ``y1`` metres and the items on each level (static)."""
+    spec, objects = cab.spec, cab.objects
+    w, h, d = spec.size_m
+    hw, t = w / 2, BOARD_M
+    if spec.shelves:
+        # Boards set back from the front, clear of the door's back face.
+        step = (y1 - y0) / (spec.shelves + 1)
+        ys = [y0 + step * (i + 1) for i in range(spec.shelves)]
+        sv, st = boxes([((-hw + t, y - t / 2, -d + t), (hw - t, y + t / 2, -0.02)) for y in ys])
+        objects.append(SceneObject("shelves", sv, st, cab.tex, cab.tex_params, STATIC_LABEL))
+    if spec.interior_items:
+        floor_y = y0 + (t / 2 if y0 > 0 else t)
+        lo, hi = np.array([-hw + t, y0, -d + t]), np.array([hw - t, y1 - t, 0])
+        if spec.shelves:  # the bottom level ends under the first shelf; then one level per shelf
+            levels = [floor_y] + [y + t / 2 for y in ys]
+            tops = [y - t / 2 for y in ys] + [y1 - t]
+        else:
+            levels, tops = [floor_y], [hi[1]]
+        for i, (ly, ty) in enumerate(zip(levels, tops, strict=True)):
+            objects.extend(_interior_items(
+                sub_rng(spec.seed, "door_items" if i == 0 else f"door_items{i}"),
+                lo, np.array([hi[0], ty, hi[2]]), STATIC_LABEL, "shelf" if i == 0 else f"shelf{i}", ly,
+            ))
+
+
+def _add_drawer(cab: _Cabinet, y0: float, y1: float, moving: bool) -> None:
+    """A drawer front from ``y0`` to ``y1`` metres with its handle; a moving drawer also gets its
+    box and contents, and a part (a fixed one is static scenery)."""
+    spec, rng, objects = cab.spec, cab.rng, cab.objects
+    w, h, d = spec.size_m
+    hw, t, front_m = w / 2, BOARD_M, spec.front_thickness_m
+    k = len(cab.parts) if moving else STATIC_LABEL
+    name = "drawer" if moving else "drawer_fixed"
+    ymid = (y0 + y1) / 2
+    pivot = np.array([0.0, ymid, front_m])
+    pose = make_se3(np.eye(3), pivot)
+    fv, ft = boxes([((-hw + 0.003, y0 + 0.003 - ymid, -front_m), (hw - 0.003, y1 - 0.003 - ymid, 0))])
+    ftex, fparams = _wood_params(rng, cab.low)
+    objects.append(SceneObject(f"{name}_front", fv, ft, ftex, fparams, k, pose))
+    length = min(0.25, 0.4 * w) if spec.handle != "long-bar" else min(0.7, 0.8 * w)
+    handle, grip_z = handle_mesh(spec.handle, False, length, 0.0, 0.0)
+    if handle is not None:
+        objects.append(SceneObject(f"{name}_handle", *handle, "solid", cab.metal, k, pose))
+    if not moving:
+        return
+    # The drawer box behind its front, in the same local frame (origin at the front's face).
+    bt, x0, x1 = 0.012, -hw + t + 0.004, hw - t - 0.004
+    # Clear of the board below (the carcass bottom, or half a divider).
+    yb0, yb1 = y0 + (t if y0 == 0 else t / 2) + 0.004 - ymid, y1 - 0.03 - ymid
+    zb0, zb1 = -(d - t - 0.01) - front_m, -front_m
+    bv, btr = boxes([
+        ((x0, yb0, zb0), (x1, yb0 + bt, zb1)), ((x0, yb0, zb0), (x0 + bt, yb1, zb1)),
+        ((x1 - bt, yb0, zb0), (x1, yb1, zb1)), ((x0, yb0, zb0), (x1, yb1, zb0 + bt)),
+    ])
+    btex, bparams = _wood_params(rng, cab.low)
+    objects.append(SceneObject("drawer_box", bv, btr, btex, bparams, k, pose))
+    if spec.interior_items:
+        items = _interior_items(sub_rng(spec.seed, "drawer_items"), np.array([x0 + bt, yb0, zb0 + bt]),
+                                np.array([x1 - bt, yb1, zb1]), k, "drawer_item", yb0 + bt)
+        for it in items:  # contents ride with the drawer, so they carry its label
+            it.world_from_local = pose @ it.world_from_local
+        objects.extend(items)
+    part = Part(
+        "drawer", "prismatic", np.array([0.0, 0.0, 1.0]), pivot.copy(), float(spec.drawer_open_m),
+        grip=pivot + [0, 0, grip_z], front=np.array([0.0, 0.0, 1.0]),
+        handle_dir=np.array([1.0, 0.0, 0.0]),
+        tilt_pivot=pivot + [0, yb0, zb0],
+    )
+    if "drawer_tilt" in cab.effects:
+        part.tilt_rad = float(cab.effects["drawer_tilt"]["angle_rad"])
+    cab.parts.append(part)

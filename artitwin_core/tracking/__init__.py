@@ -7,8 +7,8 @@ one frame into world points with the frame's depth (lower resolution than RGB is
 which the tracks would otherwise carry into the joint.
 """
 
-from artitwin_core.tracking._config import TrackingConfig
-from artitwin_core.tracking._frame_poses import FramePoseConfig, FramePoseFit, estimate_frame_poses
+from artitwin_core.tracking._config import FramePoseConfig, TrackingConfig
+from artitwin_core.tracking._frame_poses import FramePoseFit, estimate_frame_poses
 from artitwin_core.tracking._lift import lift_pixels
 from artitwin_core.tracking._metrics import track_errors_m, true_track_positions
 from artitwin_core.tracking._track import track_part_points

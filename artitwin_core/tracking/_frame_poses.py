@@ -44,6 +44,7 @@ from scipy.spatial.transform import Rotation
 
 from artitwin_core._errors import InputError
 from artitwin_core.capture import Capture
+from artitwin_core.tracking._config import FramePoseConfig
 from artitwin_core.tracking._flow import to_gray
 from artitwin_core.tracking._model_track import (
     RigidParams,
@@ -55,67 +56,6 @@ from artitwin_core.tracking._model_track import (
     _patches,
     _seen_points,
 )
-
-
-@dataclass(frozen=True)
-class FramePoseConfig:
-    """Hyperparameters of :func:`estimate_frame_poses`.
-
-    Attributes:
-        keyframe_step: a keyframe every this many frames (and the last frame).
-        reach: frames up to this many before and after a keyframe are aligned to it.
-        mask_dilation_px: part and hand masks are grown by this many RGB pixels before they
-            exclude the background (their edges are a few pixels loose).
-        min_confidence: depth below this ARKit confidence is not used.
-        max_depth_m: depth beyond this is not used.
-        model_points: static points per keyframe model (a fixed random subset).
-        min_ncc: an alignment counts only if the keyframe's grey levels correlate with the frame's
-            at least this well, patch by patch (depth alone lets a wall slide within itself).
-        min_inlier_fraction: ... and at least this share of the model's visible points fits the
-            frame's depth.
-        max_rotation_rad, max_translation_m: ... and it moved the keyframe no further than this
-            (larger motions are not jitter but a failed alignment).
-        min_chi2_per_dof: the corrections are applied only if the chi-square of their
-            frame-to-frame part against its standard errors, per degree of freedom, is at least
-            this.
-        slow_frames: the slow part of the corrections is a straight line in time fitted to this
-            many frames around each frame.
-        min_whiteness: below this whiteness (``FramePoseFit.whiteness``) only the frame-to-frame
-            part is applied.
-        min_depth_agreement: ... and nothing is applied unless the frames' depth agrees better
-            at the corrected poses, by at least this z-score (``FramePoseFit.depth_agreement``).
-        prior_rotation_rad, prior_translation_m: a loose zero-mean prior on each frame's error,
-            which holds frames that no alignment reached (and splits of the recording that no
-            keyframe links) at their recorded poses.
-    """
-
-    keyframe_step: int = 5
-    reach: int = 10
-    mask_dilation_px: int = 8
-    min_confidence: int = 1
-    max_depth_m: float = 4.0
-    model_points: int = 3000
-    min_ncc: float = 0.5
-    min_inlier_fraction: float = 0.5
-    max_rotation_rad: float = 0.03
-    max_translation_m: float = 0.05
-    min_chi2_per_dof: float = 10.0
-    slow_frames: int = 15
-    min_whiteness: float = 0.9
-    min_depth_agreement: float = 3.0
-    prior_rotation_rad: float = 0.02
-    prior_translation_m: float = 0.02
-
-    def __post_init__(self) -> None:
-        if self.keyframe_step < 1 or self.reach < 1:
-            raise InputError("FramePoseConfig.keyframe_step and reach must be at least 1.")
-        if self.slow_frames < 3:
-            raise InputError("FramePoseConfig.slow_frames must be at least 3 (a line needs them).")
-        if self.model_points < 50:
-            raise InputError("FramePoseConfig.model_points must be at least 50.")
-        for name in ("max_rotation_rad", "max_translation_m", "prior_rotation_rad", "prior_translation_m"):
-            if not getattr(self, name) > 0:
-                raise InputError(f"FramePoseConfig.{name} must be positive.")
 
 
 @dataclass(frozen=True)

@@ -18,7 +18,7 @@ from scipy.spatial import cKDTree
 
 from artitwin_core import InputError
 from artitwin_core.change import build_canonical_tsdf, propagate_masks_sam2, segment_parts
-from artitwin_core.change._parts import _icp_point_to_plane
+from artitwin_core.change._motion import _icp_point_to_plane
 from artitwin_core.geometry import axis_angle_to_matrix, make_se3
 from artitwin_core.masks import MaskSequence
 from artitwin_core.synth import SceneSpec, generate_scene

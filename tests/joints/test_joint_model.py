@@ -6,7 +6,7 @@ from hypothesis import strategies as st
 from scipy.optimize._numdiff import approx_derivative
 
 from artitwin_core.joints import joint_transforms
-from artitwin_core.joints._estimate import _Fit, _theta_problem
+from artitwin_core.joints._fit import _Fit, _theta_problem
 
 unit3 = st.tuples(*[st.floats(-1, 1)] * 3).map(np.array).filter(lambda v: np.linalg.norm(v) > 0.1)
 vec3 = st.tuples(*[st.floats(-3, 3)] * 3).map(np.array)

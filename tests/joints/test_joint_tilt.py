@@ -19,7 +19,7 @@ from artitwin_core.joints import (
     joint_transforms,
     simulate_trajectories,
 )
-from artitwin_core.joints._estimate import _tilt_rate
+from artitwin_core.joints._slide import _tilt_rate
 from artitwin_core.tracking import Trajectories
 
 T, N = 20, 200

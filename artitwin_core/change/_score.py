@@ -1,0 +1,125 @@
+"""How well a part moved to a joint state explains one frame's observed depth
+(``motion_score``), and the joint state near a given one that explains a frame best.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+import open3d as o3d
+from scipy.spatial import cKDTree
+
+from artitwin_core.change._config import PartConfig
+from artitwin_core.change._detect import depth_tolerance
+from artitwin_core.change._views import FrameView, PartModel, _to_world
+
+
+def _frame_cloud(view: FrameView, config: PartConfig):
+    """Observed points of a frame (canonical frame), whether each is a change, and a KD-tree."""
+    if view.cache.get("cloud") is None:
+        valid = np.isfinite(view.observed_depth)
+        pts = _to_world(view, view.observed_depth, valid)
+        diff = (view.rendered_depth - view.observed_depth)[valid]
+        tol = depth_tolerance(view.observed_depth[valid], config.change)
+        # Unknown canonical depth (never seen in the static recording) is not evidence of change.
+        changed = np.isfinite(diff) & (np.abs(diff) > tol)
+        view.cache["cloud"] = (pts, changed, cKDTree(pts) if len(pts) else None)
+    return view.cache["cloud"]
+
+
+def motion_score(
+    view: FrameView, moved: np.ndarray, closed: np.ndarray, config: PartConfig
+) -> tuple[float, int, int]:
+    """How well part samples moved to ``moved [N, 3]`` (from ``closed [N, 3]``, canonical frame)
+    explain one frame's observation.
+
+    A visible sample supports the motion when an observed point lies within
+    ``support_distance_m`` of it in 3D (3D, not along the ray: a thin part seen at a grazing angle
+    shows its back face far along the ray) and that observed point is a change, unless the
+    sample has not moved (a closed part matches the canonical surface). It contradicts the
+    motion when the observation lies behind it (we see through where the part would be).
+
+    Returns:
+        score (supporting minus weighted see-through samples), supporting count, see-through count.
+    """
+    cam = (moved - view.world_from_camera[:3, 3]) @ view.world_from_camera[:3, :3]
+    fx, fy, cx, cy = view.depth_intrinsics
+    z = cam[:, 2]
+    ok = z > 0.05
+    zs = np.where(ok, z, 1.0)
+    u = np.rint(cam[:, 0] / zs * fx + cx).astype(np.int64)
+    v = np.rint(cam[:, 1] / zs * fy + cy).astype(np.int64)
+    h, w = view.observed_depth.shape
+    ok &= (u >= 0) & (u < w) & (v >= 0) & (v < h)
+    idx = np.nonzero(ok)[0]
+    if len(idx) == 0:
+        return 0.0, 0, 0
+    pix = v[idx] * w + u[idx]
+    # One vote per pixel: the nearest sample (the part hides its own back).
+    order = np.lexsort((z[idx], pix))
+    first = np.ones(len(order), bool)
+    first[1:] = pix[order][1:] != pix[order][:-1]
+    idx = idx[order][first]
+    obs = view.observed_depth[v[idx], u[idx]]
+    tol = depth_tolerance(z[idx], config.change)
+    through = int(np.sum(obs > z[idx] + tol))
+    pts, changed, tree = _frame_cloud(view, config)
+    if tree is None:
+        return -config.violation_weight * through, 0, through
+    dist, nn = tree.query(moved[idx], distance_upper_bound=0.2)
+    near = dist < config.support_distance_m + 0.005 * z[idx] ** 2
+    still = np.linalg.norm(moved[idx] - closed[idx], axis=1) < 0.03
+    support = int(np.sum(near & (still | changed[np.minimum(nn, len(changed) - 1)])))
+    return support - config.violation_weight * through, support, through
+
+
+def _scoring_subset(points: np.ndarray, n: int = 1500) -> np.ndarray:
+    """At most ``n`` of ``points``, evenly strided (deterministic), to keep scoring cheap."""
+    step = max(1, int(np.ceil(len(points) / n)))
+    return points[::step]
+
+
+def _observed_cloud(view: FrameView) -> o3d.geometry.PointCloud:
+    pts = _to_world(view, view.observed_depth, np.isfinite(view.observed_depth))
+    pc = o3d.geometry.PointCloud(o3d.utility.Vector3dVector(pts)).voxel_down_sample(0.01)
+    pc.estimate_normals(o3d.geometry.KDTreeSearchParamHybrid(radius=0.04, max_nn=30))
+    return pc
+
+
+def _best_state(
+    model: PartModel, view: FrameView, centre_q: float, cfg: PartConfig, after_reference: bool = False
+) -> tuple[float, float]:
+    """Joint state near ``centre_q`` (and closed) that best explains ``view``; and its score in [0, 1].
+
+    ``after_reference``: ``view`` comes after the model's reference frame, which was not the
+    last, so the part may open further than there."""
+    span = cfg.search_window * abs(model.reference_q)
+    # A drawer's reference frame need not be where it is most open (non-ideal-joints' drawer was
+    # fitted at 0.207 m and opens to 0.25 m); a door's usually is, and searching past it invites
+    # grazing-angle states. After a reference frame that is not the last (the door seen best on
+    # its way past the camera's line of sight) the state goes on to the hypotheses' limit.
+    reach = cfg.max_rotation_rad if model.joint_type == "revolute" else cfg.max_translation_m
+    far = model.reference_q * (1.1 if model.joint_type == "revolute" else 1.35)
+    if after_reference:
+        far = float(np.sign(model.reference_q)) * max(abs(far), reach)
+    lo, hi = sorted((0.0, far))
+    grid = np.unique(np.clip(np.concatenate([np.linspace(centre_q - span, centre_q + span, 41), [0.0]]), lo, hi))
+
+    sub = _scoring_subset(model.closed_points)
+
+    def evaluate(q):
+        m = model.motion(q)
+        return motion_score(view, sub @ m[:3, :3].T + m[:3, 3], sub, cfg)
+
+    scores = [evaluate(q) for q in grid]
+    i = int(np.argmax([s[0] for s in scores]))
+    q = float(grid[i])
+    step = (grid[1] - grid[0]) if len(grid) > 1 else 0.0
+    for q2 in np.linspace(q - step, q + step, 9):
+        if lo <= q2 <= hi:
+            s2 = evaluate(q2)
+            if s2[0] > scores[i][0]:
+                q, scores[i] = float(q2), s2
+    _, sup, thr = scores[i]
+    if sup + thr == 0:
+        return centre_q, 0.0  # out of view: keep the state
+    return q, sup / (sup + thr)

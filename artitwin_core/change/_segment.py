@@ -1,0 +1,245 @@
+"""Part and hand masks of every dynamic frame (``segment_parts``): find the parts that moved,
+fit their motion, and label them in every frame.
+
+The vanished surfaces are screened into parts at the reference frame
+(``segment_part_at_frame``). Going backwards from the last frame, each frame's joint state is
+searched near the next frame's, so the part closes smoothly in the labels
+(``propagate_masks_backwards``).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, replace
+
+import numpy as np
+from scipy.spatial import cKDTree
+
+from artitwin_core._errors import InputError
+from artitwin_core.capture import Capture
+from artitwin_core.change._canonical import CanonicalMesh
+from artitwin_core.change._config import PartConfig
+from artitwin_core.change._grow import _grow_over_frames
+from artitwin_core.change._label import (
+    _static_depth_without_parts,
+    label_frame,
+    part_triangles,
+    sample_normals,
+)
+from artitwin_core.change._motion import (
+    _fit_setup,
+    _fit_slide_and_grow,
+    _fit_ungrown,
+    _reference_support,
+    _same_joint,
+)
+from artitwin_core.change._score import _best_state, _scoring_subset, motion_score
+from artitwin_core.change._vanish import find_moved_parts
+from artitwin_core.change._views import FrameView, PartModel, frame_views
+from artitwin_core.masks import MaskSequence
+from artitwin_core.parts import PartFate
+
+
+@dataclass(frozen=True)
+class PartSegmentation:
+    """What ``segment_parts`` found.
+
+    Attributes:
+        masks: per-frame part labels, hand masks and scores (RGB resolution).
+        models: the moving parts, in onset order (label k + 1 is ``models[k]``).
+        states: ``[T, K]`` joint state of each part per frame (radians or metres).
+        candidates: ``[K]`` the candidate index (:func:`find_moved_parts` order) of each part.
+        fates: the candidates that are not a part of their own, and why (:func:`screen_candidates`).
+    """
+
+    masks: MaskSequence
+    models: list[PartModel]
+    states: np.ndarray
+    candidates: np.ndarray | None = None
+    fates: tuple[PartFate, ...] = ()
+
+
+def segment_part_at_frame(
+    views: list[FrameView],
+    frame: int | None = None,
+    *,
+    gravity=(0.0, -1.0, 0.0),
+    mesh: CanonicalMesh | None = None,
+    config: PartConfig | None = None,
+) -> list[PartModel]:
+    """Find the moved parts and fit each one's motion at ``frame`` (default: the last frame).
+
+    The changed region at that frame is explained by rigid part motions only; what is in front
+    of the moved parts and the static scene (hand, arm) is not part.
+
+    Args:
+        views: every dynamic frame (:func:`frame_views`), canonical frame.
+        frame: the reference frame.
+        gravity: ``[3]`` gravity direction in the canonical frame.
+        mesh: the canonical mesh (optional; sharper part extents).
+
+    Returns:
+        the parts in onset order; empty when nothing moved (:func:`screen_candidates` also says
+        what became of the candidates that are not among them).
+    """
+    return screen_candidates(views, frame, gravity=gravity, mesh=mesh, config=config)[0]
+
+
+def screen_candidates(
+    views: list[FrameView],
+    frame: int | None = None,
+    *,
+    gravity=(0.0, -1.0, 0.0),
+    mesh: CanonicalMesh | None = None,
+    config: PartConfig | None = None,
+) -> tuple[list[PartModel], list[int], list[PartFate]]:
+    """:func:`segment_part_at_frame`, with every candidate accounted for.
+
+    Each vanished surface (:func:`find_moved_parts`, candidates numbered in its order) is fitted;
+    one that touches a part kept before it and moves with that part (the same joint, or that
+    part's motion explains what its reference frame sees of it) is merged into it: a door's strip
+    along its hinge vanishes later than the rest of it and is clustered apart. One that no motion
+    explains (too little of it supported at its fitted state) is dropped.
+
+    Returns:
+        the kept parts, the candidate index of each, and the fates of the others.
+    """
+    cfg = config or PartConfig()
+    models: list[PartModel] = []
+    kept: list[int] = []
+    fates: list[PartFate] = []
+    for i, (pts, onset) in enumerate(find_moved_parts(views, cfg)):
+        up, frames = _fit_setup(pts, views, gravity, frame, cfg)
+        model = _fit_ungrown(pts, onset, views, up, frames, cfg, mesh)
+        host = _host_part(model, models, views, cfg)
+        if host is not None:
+            k, why = host
+            models[k] = replace(models[k], closed_points=np.concatenate([models[k].closed_points, model.closed_points]))
+            fates.append(PartFate(candidate=i, fate="merged", stage="part_masks", into=kept[k], reason=why))
+            continue
+        support = _reference_support(model, views[model.reference_frame], cfg)
+        if support < cfg.min_part_support:
+            # No motion of this surface explains what the reference frame sees: it vanished for
+            # another reason. strong-hand-occlusion's cabinet side, seen edge-on, vanished from
+            # the first frame on and came out as a second part with no support at all.
+            fates.append(PartFate(
+                candidate=i, fate="dropped", stage="part_masks",
+                reason=f"no motion of its {len(model.closed_points)} surface samples explains what frame "
+                f"{model.reference_frame} sees ({support} supported at its best fit; {cfg.min_part_support} needed)",
+            ))
+            continue
+        models.append(_fit_slide_and_grow(model, views, cfg, mesh))
+        kept.append(i)
+    return models, kept, fates
+
+
+def _host_part(
+    model: PartModel, kept: list[PartModel], views: list[FrameView], cfg: PartConfig
+) -> tuple[int, str] | None:
+    """The kept part ``model``'s surface belongs to, with the reason, or None.
+
+    It must touch that part (closed samples within ``host_reach_m``) and move with it: the same
+    joint (``_same_joint``), or that part's motion at its reference state explains most of what
+    the reference frame sees of ``model``'s samples (supported, not seen through, and better than
+    the samples held still)."""
+    sub = _scoring_subset(model.closed_points)
+    for k, host in enumerate(kept):
+        gap = float(cKDTree(host.closed_points).query(sub, distance_upper_bound=cfg.host_reach_m)[0].min())
+        if not np.isfinite(gap):
+            continue
+        if _same_joint(model, host):
+            return k, f"it touches candidate part {k}'s surface ({1e3 * gap:.0f} mm) and was fitted with the same joint"
+        view = views[host.reference_frame]
+        m = host.motion(host.reference_q)
+        score, support, through = motion_score(view, sub @ m[:3, :3].T + m[:3, 3], sub, cfg)
+        still, _, _ = motion_score(view, sub, sub, cfg)
+        if support >= cfg.host_min_support_frac * len(sub) and score > max(still, 0.0):
+            return k, (f"it touches candidate part {k}'s surface ({1e3 * gap:.0f} mm) and that part's motion explains "
+                       f"{support} of its {len(sub)} samples in frame {host.reference_frame} ({through} seen through)")
+    return None
+
+
+def propagate_masks_backwards(
+    models: list[PartModel],
+    views: list[FrameView],
+    dynamic: Capture,
+    mesh: CanonicalMesh,
+    config: PartConfig | None = None,
+) -> PartSegmentation:
+    """Label every frame, from the reference frame (normally the last) back to the first,
+    tracking each part's joint state.
+
+    Each frame's state is searched near the following frame's (within ``search_window`` of the
+    reference state, and closed), so the labels follow the part as it closes. Frames after a
+    reference frame that is not the last are tracked forwards the same way.
+
+    Args:
+        models: the parts (:func:`segment_part_at_frame`), fitted at the last frame.
+        views: every dynamic frame (:func:`frame_views`).
+        dynamic: the dynamic recording (RGB frames, size and intrinsics).
+        mesh: the canonical mesh (for what the parts hide or reveal).
+    """
+    cfg = config or PartConfig()
+    n = len(views)
+    if n != dynamic.num_frames:
+        raise InputError(f"propagate_masks_backwards: {n} views for a recording of {dynamic.num_frames} frames.")
+    tris = part_triangles(mesh, models, radius_m=1.5 * cfg.vanish_voxel_m)
+    states = np.zeros((n, len(models)))
+    scores = np.zeros((n, len(models)))
+    for k, model in enumerate(models):
+        r = min(model.reference_frame, n - 1)
+        order = list(range(r, -1, -1)) + list(range(r + 1, n))
+        current = model.reference_q
+        for t in order:
+            if t == r + 1:
+                current = states[r, k]  # forwards again from the reference state
+            current, scores[t, k] = _best_state(model, views[t], current, cfg, after_reference=t > r)
+            states[t, k] = current
+    if cfg.grow_frames > 0:
+        models = [_grow_over_frames(model, views, states[:, k], scores[:, k], mesh, cfg)
+                  for k, model in enumerate(models)]
+    part, hand = _label_frames(models, states, views, dynamic, mesh, tris, cfg)
+    score = scores.min(1) if len(models) else np.zeros(n)
+    return PartSegmentation(MaskSequence(part, hand, score.astype(np.float32)), models, states)
+
+
+def _label_frames(
+    models: list[PartModel], states: np.ndarray, views: list[FrameView], dynamic: Capture, mesh: CanonicalMesh,
+    tris: np.ndarray, cfg: PartConfig,
+) -> tuple[np.ndarray, np.ndarray]:
+    """Part labels ``[T, H, W]`` uint8 and hand masks ``[T, H, W]`` bool of every frame at the
+    parts' states ``states [T, K]``; ``tris`` are the canonical triangles on the parts."""
+    width, height = dynamic.rgb_size
+    n = len(views)
+    part = np.zeros((n, height, width), np.uint8)
+    hand = np.zeros((n, height, width), bool)
+    normals = [sample_normals(m.closed_points) for m in models]
+    for t in range(n):
+        static_d = _static_depth_without_parts(mesh, tris, views[t].world_from_camera, dynamic.rgb_intrinsics[t],
+                                               width, height)
+        part[t], hand[t] = label_frame(models, list(states[t]), views[t].world_from_camera,
+                                       dynamic.rgb_intrinsics[t], (width, height), views[t].observed_depth,
+                                       static_d, cfg, normals, observed_rgb=dynamic.rgb[t])
+    return part, hand
+
+
+def segment_parts(
+    dynamic: Capture,
+    canonical_from_session: np.ndarray,
+    mesh: CanonicalMesh,
+    *,
+    gravity=(0.0, -1.0, 0.0),
+    config: PartConfig | None = None,
+) -> PartSegmentation:
+    """Part and hand masks for every dynamic frame, with the default geometric backend.
+
+    Args:
+        dynamic: the dynamic recording (its own session frame).
+        canonical_from_session: ``[4, 4]`` from :func:`register_recordings`.
+        mesh: the canonical model (:func:`build_canonical_tsdf`).
+        gravity: ``[3]`` gravity direction in the canonical frame.
+    """
+    cfg = config or PartConfig()
+    views = frame_views(dynamic, np.asarray(canonical_from_session, dtype=np.float64), mesh)
+    models, kept, fates = screen_candidates(views, None, gravity=gravity, mesh=mesh, config=cfg)
+    seg = propagate_masks_backwards(models, views, dynamic, mesh, cfg)
+    return replace(seg, candidates=np.asarray(kept, dtype=np.int32), fates=tuple(fates))

@@ -1,0 +1,149 @@
+"""The closed surfaces of the parts that moved: canonical surface that vanished.
+
+In the dynamic frames, where we now see farther than the canonical surface, that surface has moved
+away. Votes over frames collect it (``find_moved_parts``), clustered in space and in the time it
+vanished, so neighbouring parts that open at different times come out apart.
+"""
+
+from __future__ import annotations
+
+import cv2
+import numpy as np
+import open3d as o3d
+from scipy.sparse import coo_matrix
+from scipy.sparse.csgraph import connected_components
+from scipy.spatial import cKDTree
+
+from artitwin_core.change._config import PartConfig
+from artitwin_core.change._detect import depth_tolerance
+from artitwin_core.change._views import FrameView, _to_world
+
+
+def find_moved_parts(views: list[FrameView], config: PartConfig | None = None) -> list[tuple[np.ndarray, int]]:
+    """Closed surfaces of the parts that moved: canonical surface seen vanished in several frames;
+    where none vanished, canonical surface hidden by something nearer in several frames
+    (``min_occluded_frames``).
+
+    Returns:
+        per part, best first in onset order: closed surface samples ``[N, 3]`` (canonical frame,
+        metres) and the onset frame index.
+    """
+    cfg = config or PartConfig()
+    parts = _changed_surfaces(views, cfg, nearer=False)
+    if not parts and cfg.min_occluded_frames > 0:
+        parts = _changed_surfaces(views, cfg, nearer=True)
+    return parts
+
+
+def _changed_surfaces(views: list[FrameView], cfg: PartConfig, nearer: bool) -> list[tuple[np.ndarray, int]]:
+    """:func:`find_moved_parts` for canonical surface seen vanished (observed farther than
+    rendered), or with ``nearer``, hidden by something nearer."""
+    vox = cfg.vanish_voxel_m
+    keys, frames, points = [], [], []
+    kernel = np.ones((2 * cfg.vanish_opening_px + 1,) * 2, np.uint8)
+    for t, v in enumerate(views):
+        diff = v.rendered_depth - v.observed_depth
+        tolerance = depth_tolerance(v.rendered_depth, cfg.change)
+        changed = np.isfinite(diff) & ((diff > tolerance) if nearer else (diff < -tolerance))
+        if cfg.vanish_opening_px > 0:
+            # Opening drops thin strips along depth edges, where small pose errors look like change;
+            # it also drops the thin hole a drawer seen head-on leaves, so it is off by default and
+            # the votes over frames and the cluster size reject the edge noise instead.
+            changed = cv2.morphologyEx(changed.astype(np.uint8), cv2.MORPH_OPEN, kernel).astype(bool)
+        if not changed.any():
+            continue
+        p = _to_world(v, v.rendered_depth, changed)
+        k = np.floor(p / vox).astype(np.int64)
+        keys.append(k)
+        frames.append(np.full(len(k), t))
+        points.append(p)
+    if not keys:
+        return []
+    keys_all = np.concatenate(keys)
+    frames_all = np.concatenate(frames)
+    points_all = np.concatenate(points)
+    # Count distinct frames per voxel.
+    pairs = np.unique(np.concatenate([keys_all, frames_all[:, None]], 1), axis=0)
+    vkeys, inv_pairs, counts = np.unique(pairs[:, :3], axis=0, return_inverse=True, return_counts=True)
+    good = counts >= (cfg.min_occluded_frames if nearer else cfg.min_vanish_frames)
+    if good.sum() < cfg.min_part_voxels:
+        return []
+    first_frame = np.full(len(vkeys), np.iinfo(np.int64).max)
+    np.minimum.at(first_frame, inv_pairs.ravel(), pairs[:, 3])
+    centres = (vkeys[good] + 0.5) * vox
+    good_keys = vkeys[good]
+    good_first = first_frame[good]
+    times = np.array([v.timestamp_s for v in views], dtype=np.float64)
+    if not (np.all(np.isfinite(times)) and np.all(np.diff(times) > 0)):
+        times = np.arange(len(views)) / 15.0
+    labels = _split_by_onset(centres, times[good_first], cfg)
+    # Map each vanished point to its voxel's cluster label.
+    lut = {tuple(k): i for i, k in enumerate(good_keys)}
+    pk = np.floor(points_all / vox).astype(np.int64)
+    idx = np.array([lut.get(tuple(k), -1) for k in pk])
+    parts = []
+    for lab in range(labels.max() + 1 if len(labels) else 0):
+        members = labels == lab
+        if members.sum() < cfg.min_part_voxels:
+            continue
+        sel = idx >= 0
+        sel[sel] = labels[idx[sel]] == lab
+        pc = o3d.geometry.PointCloud(o3d.utility.Vector3dVector(points_all[sel])).voxel_down_sample(cfg.sample_m)
+        # Onset: the frame by which a tenth of the part's voxels had vanished.
+        onset = int(np.quantile(good_first[members], 0.1))
+        parts.append((np.asarray(pc.points), onset))
+    parts.sort(key=lambda p: (p[1], -len(p[0])))
+    return parts
+
+
+def _dbscan(points: np.ndarray, eps: float, min_points: int = 4) -> np.ndarray:
+    """``[N]`` DBSCAN labels (-1 noise) of ``points [N, D]``, any dimension (Open3D's is 3D only)."""
+    tree = cKDTree(points)
+    pairs = tree.query_pairs(eps, output_type="ndarray")
+    n = len(points)
+    degree = np.bincount(pairs.ravel(), minlength=n) + 1  # counting the point itself
+    core = degree >= min_points
+    both = core[pairs[:, 0]] & core[pairs[:, 1]]
+    graph = coo_matrix((np.ones(both.sum()), (pairs[both, 0], pairs[both, 1])), shape=(n, n))
+    _, comp = connected_components(graph, directed=False)
+    labels = np.where(core, comp, -1)
+    # Border points join the cluster of a core neighbour.
+    for i, j in pairs[core[pairs[:, 0]] != core[pairs[:, 1]]]:
+        c, b = (i, j) if core[i] else (j, i)
+        if labels[b] < 0:
+            labels[b] = comp[c]
+    _, labels_dense = np.unique(labels, return_inverse=True)
+    return np.where(labels >= 0, labels_dense - (labels < 0).any(), -1)
+
+
+def _split_by_onset(centres: np.ndarray, onset_s: np.ndarray, cfg: PartConfig) -> np.ndarray:
+    """``[V]`` part label per vanished voxel (-1 noise): space clusters split where onsets differ.
+
+    Two parts side by side (a door above a drawer, a divider of a couple of centimetres between
+    them) leave one connected vanished surface, but they open at different times. Clustering in
+    space and onset time (``onset_m_per_s`` apart per second) separates them; the onset of a
+    voxel only seen late (hidden by the hand, out of view) can lag its part's, so voxels of such
+    small spatio-temporal clusters go to the nearest large cluster of their space cluster.
+    """
+    labels = _dbscan(centres, cfg.cluster_eps_m)
+    if cfg.onset_m_per_s <= 0 or len(labels) == 0:
+        return labels
+    out = np.full(len(labels), -1)
+    next_label = 0
+    for lab in range(labels.max() + 1):
+        members = np.nonzero(labels == lab)[0]
+        if len(members) < cfg.min_part_voxels:
+            continue
+        st = np.concatenate([centres[members], cfg.onset_m_per_s * onset_s[members, None]], 1)
+        sub = _dbscan(st, cfg.cluster_eps_m)
+        sizes = np.bincount(sub[sub >= 0], minlength=1)
+        seeds = [i for i in range(len(sizes)) if sizes[i] >= cfg.min_part_voxels]
+        if len(seeds) <= 1:
+            out[members] = next_label
+            next_label += 1
+            continue
+        seed_pts = [centres[members[sub == i]] for i in seeds]
+        dist = np.stack([cKDTree(p).query(centres[members])[0] for p in seed_pts], 1)
+        out[members] = next_label + np.argmin(dist, 1)
+        next_label += len(seeds)
+    return out
