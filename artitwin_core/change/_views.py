@@ -12,6 +12,7 @@ import numpy as np
 from artitwin_core.capture import Capture
 from artitwin_core.change._canonical import CanonicalMesh
 from artitwin_core.geometry import axis_angle_to_matrix, make_se3
+from artitwin_core.joints import JointType
 from artitwin_core.registration import backproject
 
 
@@ -31,7 +32,7 @@ class PartModel:
     """
 
     closed_points: np.ndarray
-    joint_type: str
+    joint_type: JointType
     axis: np.ndarray
     pivot: np.ndarray
     reference_frame: int

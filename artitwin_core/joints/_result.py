@@ -7,7 +7,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from artitwin_core.joints._types import Joint
+from artitwin_core.joints._types import Joint, JointType
 
 
 @dataclass(frozen=True)
@@ -26,7 +26,7 @@ class HypothesisScore:
         joint: this hypothesis's fitted joint (same post-processing as the chosen one).
     """
 
-    joint_type: str
+    joint_type: JointType
     bic: float
     n_parameters: int
     n_inlier_tracks: int
