@@ -31,14 +31,29 @@ def pixel_grid(width: int, height: int, stride: int = 1) -> tuple[np.ndarray, np
     return u.astype(np.float64), v.astype(np.float64)
 
 
+def _split(intrinsics, ndim: int) -> tuple[np.ndarray, ...]:
+    """``fx, fy, cx, cy`` of ``intrinsics [..., 4]``, each shaped to broadcast against ``ndim``-d
+    point arrays whose leading axes are the intrinsics' leading axes."""
+    k = np.asarray(intrinsics, np.float64)
+    lead = k.shape[:-1]
+    if len(lead) > ndim:
+        raise ValueError(f"intrinsics {k.shape} have more leading axes than the {ndim}-d points")
+    return tuple(k[..., i].reshape(lead + (1,) * (ndim - len(lead))) for i in range(4))
+
+
 def pixel_rays(intrinsics, u, v) -> np.ndarray:
     """Camera-frame rays ``[..., 3]`` with ``z = 1`` through image points ``u, v`` (``[...]``, pixels).
 
-    ``intrinsics``: ``(fx, fy, cx, cy)`` pixels. A ray times a z-depth is the camera point.
+    ``intrinsics``: ``(fx, fy, cx, cy)`` pixels, ``[4]`` for one camera or ``[..., 4]`` with one
+    camera per leading index of ``u, v`` (e.g. ``[T, 4]`` with ``u, v`` ``[T, H, W]`` or
+    ``[1, H, W]``). A ray times a z-depth is the camera point.
     """
-    fx, fy, cx, cy = (float(c) for c in np.asarray(intrinsics, np.float64).reshape(-1)[:4])
     u, v = np.asarray(u, np.float64), np.asarray(v, np.float64)
-    return np.stack([(u - cx) / fx, (v - cy) / fy, np.ones(np.broadcast_shapes(u.shape, v.shape))], -1)
+    shape = np.broadcast_shapes(u.shape, v.shape)
+    fx, fy, cx, cy = _split(intrinsics, len(shape))
+    x, y = (u - cx) / fx, (v - cy) / fy
+    shape = np.broadcast_shapes(x.shape, y.shape)
+    return np.stack([np.broadcast_to(x, shape), np.broadcast_to(y, shape), np.ones(shape)], -1)
 
 
 def backproject(depth, intrinsics, u=None, v=None) -> np.ndarray:
@@ -47,7 +62,8 @@ def backproject(depth, intrinsics, u=None, v=None) -> np.ndarray:
     Args:
         depth: z-depth in metres (not ray length): ``[H, W]`` for a whole image, or ``[...]``
             values at the points ``u, v``.
-        intrinsics: ``(fx, fy, cx, cy)`` pixels, of the image ``depth`` was measured in.
+        intrinsics: ``(fx, fy, cx, cy)`` pixels, of the image ``depth`` was measured in (or
+            ``[..., 4]``, one camera per leading index, as :func:`pixel_rays`).
         u, v: ``[...]`` image points, pixels, pixel centres at integers; both or neither.
             Neither: every pixel of the ``[H, W]`` depth map, in row-major order (``[H, W, 3]`` out).
 
@@ -64,7 +80,8 @@ def backproject(depth, intrinsics, u=None, v=None) -> np.ndarray:
 
 
 def project(points, intrinsics, min_z: float = 1e-9) -> tuple[np.ndarray, np.ndarray]:
-    """Image points of camera points ``[..., 3]`` (metres).
+    """Image points of camera points ``[..., 3]`` (metres), through ``intrinsics`` ``[4]`` or one
+    camera per leading index of the points (``[..., 4]``, as :func:`pixel_rays`).
 
     Returns:
         uv ``[..., 2]`` float64 pixels (pixel centres at integers; :func:`nearest_pixel` rounds)
@@ -72,10 +89,10 @@ def project(points, intrinsics, min_z: float = 1e-9) -> tuple[np.ndarray, np.nda
         a finite but meaningless ``uv``; mask them with ``z``.
     """
     p = np.asarray(points, np.float64)
-    fx, fy, cx, cy = (float(c) for c in np.asarray(intrinsics, np.float64).reshape(-1)[:4])
+    fx, fy, cx, cy = _split(intrinsics, p.ndim - 1)
     z = p[..., 2]
     zs = np.where(z > min_z, z, 1.0)
-    return np.stack([fx * p[..., 0] / zs + cx, fy * p[..., 1] / zs + cy], -1), z
+    return np.stack([p[..., 0] / zs * fx + cx, p[..., 1] / zs * fy + cy], -1), z
 
 
 def nearest_pixel(uv) -> tuple[np.ndarray, np.ndarray]:

@@ -123,3 +123,16 @@ def test_project_through_a_pose_matches_the_world_point():
     uv, z = project(p_world @ cam[:3, :3].T + cam[:3, 3], k)
     back = backproject(z, k, uv[:, 0], uv[:, 1]) @ world_from_camera[:3, :3].T + world_from_camera[:3, 3]
     np.testing.assert_allclose(back, p_world, atol=1e-12)
+
+
+def test_one_camera_per_leading_index():
+    k = np.array([[100.0, 110.0, 3.0, 2.0], [200.0, 190.0, 4.0, 1.0]])
+    depth = np.random.default_rng(2).uniform(0.5, 3.0, (2, 5, 7))
+    u, v = pixel_grid(7, 5)
+    pts = backproject(depth, k, u[None], v[None])
+    assert pts.shape == (2, 5, 7, 3)
+    for t in range(2):
+        np.testing.assert_array_equal(pts[t], backproject(depth[t], k[t]))
+    uv, z = project(pts, k)
+    np.testing.assert_allclose(uv[..., 0], np.broadcast_to(u, (2, 5, 7)), atol=1e-12)
+    np.testing.assert_allclose(z, depth)
