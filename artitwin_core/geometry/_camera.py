@@ -10,9 +10,10 @@ pixel centres there; resampling keeps it (``capture.scale_intrinsics``: ``c' = (
 The nearest pixel of a continuous ``(u, v)`` is ``rint``, not ``floor``.
 
 The Gaussian rasterizer (``artitwin_core.gaussians``, as gsplat and COLMAP) puts the centre of
-pixel (i, j) at ``(j + 0.5, i + 0.5)`` instead: a camera point lands on the pixel whose centre is
-``fx x / z + cx``, half a pixel right of and below where the data put it. :func:`raster_intrinsics`
-converts the data's intrinsics into the ones that make a render line up with the recording.
+pixel (i, j) at ``(j + 0.5, i + 0.5)`` instead, so given the data's K it draws every point on pixel
+``u - 0.5``: half a pixel up and left of where the recording shows it. :func:`raster_intrinsics`
+converts the data's intrinsics into the ones that make a render line up with the recording; every
+rasterize call converts there, and nothing else needs to know.
 """
 
 from __future__ import annotations
