@@ -78,7 +78,7 @@ def _dynamic(dynamic: CaptureArtifact, registration: Registration) -> Capture:
     return to_core(Capture, dynamic, world_from_camera=canonical)
 
 
-@stage(name="articulate", version=3, config=ArticulateConfig, output=GaussianCheckpoint)
+@stage(name="articulate", version=2, config=ArticulateConfig, output=GaussianCheckpoint)
 def articulate_twin(
     canonical: GaussianCheckpoint,
     static: CaptureArtifact,
@@ -103,7 +103,7 @@ def articulate_twin(
     return to_artifact(GaussianCheckpoint, result.params, step=steps)
 
 
-@stage(name="articulate_report", version=2, config=ArticulateConfig, output=StageReport)
+@stage(name="articulate_report", version=1, config=ArticulateConfig, output=StageReport)
 def articulate_report(
     canonical: GaussianCheckpoint,
     twin: GaussianCheckpoint,

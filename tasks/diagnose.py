@@ -68,7 +68,7 @@ STATIC_SCOPE = "static recording"
 DYNAMIC_SCOPE = "dynamic recording"
 
 
-@stage(name="predict_views", version=4, config=PredictViewsConfig, output=ViewPrediction)
+@stage(name="predict_views", version=3, config=PredictViewsConfig, output=ViewPrediction)
 def predict_views(
     capture: CaptureArtifact, poses: CameraPoses, checkpoint: GaussianCheckpoint, config: PredictViewsConfig
 ) -> ViewPrediction:
@@ -106,7 +106,7 @@ def predict_views(
                           world_from_camera=np.asarray(poses.world_from_camera, np.float64)[frames])
 
 
-@stage(name="predict_dynamic", version=4, config=PredictViewsConfig, output=ViewPrediction)
+@stage(name="predict_dynamic", version=3, config=PredictViewsConfig, output=ViewPrediction)
 def predict_dynamic(
     twin: GaussianCheckpoint,
     dynamic: CaptureArtifact,

@@ -117,7 +117,7 @@ def _with_poses(capture: CaptureArtifact, poses: CameraPoses) -> Capture:
     return to_core(Capture, capture, world_from_camera=poses.world_from_camera)
 
 
-@stage(name="reconstruct", version=3, config=ReconstructConfig, output=GaussianCheckpoint)
+@stage(name="reconstruct", version=2, config=ReconstructConfig, output=GaussianCheckpoint)
 def reconstruct_canonical(capture: CaptureArtifact, poses: CameraPoses, config: ReconstructConfig) -> GaussianCheckpoint:
     """Train the canonical 3DGS model of the static recording with the refined ``poses``.
 
@@ -130,7 +130,7 @@ def reconstruct_canonical(capture: CaptureArtifact, poses: CameraPoses, config: 
     return to_artifact(GaussianCheckpoint, state.to_params(), step=state.step, **sensor_fields(state.sensor_model()))
 
 
-@stage(name="reconstruct_report", version=3, config=ReconstructConfig, output=StageReport)
+@stage(name="reconstruct_report", version=2, config=ReconstructConfig, output=StageReport)
 def reconstruct_report(
     capture: CaptureArtifact, poses: CameraPoses, gaussians: GaussianCheckpoint, config: ReconstructConfig
 ) -> StageReport:

@@ -40,7 +40,6 @@ from artitwin_core.gaussians import (
     rasterize,
 )
 from artitwin_core.gaussians._sh import SH_C0
-from artitwin_core.geometry import backproject, raster_intrinsics
 from artitwin_core.joints import Joint
 from artitwin_core.reconstruction import TrainViews
 from artitwin_core.reconstruction._losses import depth_l1, photometric_loss, psnr
@@ -231,7 +230,7 @@ def render_state(
     w, h = av.views.size
     return rasterize(
         means, quats, p["log_scales"][idx], p["opacity_logits"][idx], sh,
-        av.views.cam_from_world[v], tuple(float(x) for x in raster_intrinsics(av.views.intrinsics[v])), w, h,
+        av.views.cam_from_world[v], tuple(float(x) for x in av.views.intrinsics[v]), w, h,
         background=background_tensor(config.background, p["means"].device), backend=config.backend,
     )  # fmt: skip
 
@@ -319,8 +318,9 @@ def seed_unexplained(
         bad = ok & ((alpha < 0.5) | (rdepth > d + config.seed_depth_tol_m))
         if not bad.any():
             continue
+        fx, fy, cx, cy = av.views.intrinsics[v]
         z = d[bad].astype(np.float64)
-        cam = np.concatenate([backproject(z, av.views.intrinsics[v], uu[bad], vv[bad]), np.ones((len(z), 1))], 1)
+        cam = np.stack([(uu[bad] + 0.5 - cx) / fx * z, (vv[bad] + 0.5 - cy) / fy * z, z, np.ones_like(z)], 1)
         world_from_cam = np.linalg.inv(av.views.cam_from_world[v].cpu().numpy().astype(np.float64))
         x = cam @ world_from_cam.T
         lab = np.full(len(z), other_label, np.int32)

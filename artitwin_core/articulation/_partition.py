@@ -19,7 +19,6 @@ from artitwin_core._errors import InputError
 from artitwin_core.articulation._config import PartitionConfig
 from artitwin_core.articulation._kinematics import world_from_part
 from artitwin_core.gaussians import LABEL_BACKGROUND, LABEL_INTERIOR, LABEL_PART
-from artitwin_core.geometry import nearest_pixel, project
 from artitwin_core.joints import Joint
 from artitwin_core.masks import MaskSequence
 
@@ -66,7 +65,10 @@ def surface_hits(
     for v in range(len(cam_from_world)):
         cam = homo @ np.asarray(cam_from_world[v], np.float64).T
         z = cam[:, 2]
-        col, row = nearest_pixel(project(cam[:, :3], intrinsics[v], min_z=1e-3)[0])
+        fx, fy, cx, cy = intrinsics[v]
+        zs = np.where(z > 1e-3, z, 1.0)
+        col = np.floor(fx * cam[:, 0] / zs + cx).astype(np.int64)
+        row = np.floor(fy * cam[:, 1] / zs + cy).astype(np.int64)
         ii = np.nonzero((z > 1e-3) & (col >= 0) & (col < w) & (row >= 0) & (row < h))[0]
         r, c = row[ii], col[ii]
         ok = (depth_weight[v][r, c] > 0) & (np.abs(z[ii] - depth[v][r, c]) <= depth_tol_m)
@@ -130,7 +132,10 @@ def partition_gaussians(
             motion = np.eye(4) if hyp == 0 else world_from_part(joints[hyp - 1], float(joints[hyp - 1].q[t]))
             cam = homo @ (cam_from_world[v] @ motion).T
             z = cam[:, 2]
-            col, row = nearest_pixel(project(cam[:, :3], intrinsics[v], min_z=1e-3)[0])
+            fx, fy, cx, cy = intrinsics[v]
+            zs = np.where(z > 1e-3, z, 1.0)
+            col = np.floor(fx * cam[:, 0] / zs + cx).astype(np.int64)
+            row = np.floor(fy * cam[:, 1] / zs + cy).astype(np.int64)
             inside = (z > 1e-3) & (col >= 0) & (col < w) & (row >= 0) & (row < h)
             ii = np.nonzero(inside)[0]
             r, c = row[ii], col[ii]

@@ -10,7 +10,7 @@ import torch
 
 from artitwin_core.capture import Capture
 from artitwin_core.gaussians import GaussianParams, rasterize, resolve_backend
-from artitwin_core.geometry import invert_se3, raster_intrinsics
+from artitwin_core.geometry import invert_se3
 from artitwin_core.reconstruction._losses import psnr, ssim
 from artitwin_core.reconstruction._sensor import SensorModel
 from artitwin_core.reconstruction._train import depth_on_rgb_grid
@@ -86,7 +86,7 @@ class ModelRenderer:
                 self.means if means is None else means, self.quats_wxyz if quats_wxyz is None else quats_wxyz,
                 self.log_scales, self.opacity_logits, self.sh if sh is None else sh,
                 invert_se3(np.asarray(world_from_camera, np.float64)),
-                tuple(float(x) for x in raster_intrinsics(intrinsics)), int(width), int(height),
+                tuple(float(x) for x in intrinsics), int(width), int(height),
                 background=self.background, backend=self.backend,
             )  # fmt: skip
             return (

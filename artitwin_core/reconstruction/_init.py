@@ -18,7 +18,6 @@ from artitwin_core._errors import InputError
 from artitwin_core.capture import Capture
 from artitwin_core.gaussians import LABEL_BACKGROUND, GaussianParams
 from artitwin_core.gaussians._sh import SH_C0
-from artitwin_core.geometry import backproject, pixel_grid, project
 from artitwin_core.reconstruction._config import InitConfig
 
 
@@ -43,8 +42,8 @@ def backproject_depth(
     pts, cols, wts = [], [], []
     _, h, w = capture.depth.shape
     _, hr, wr, _ = capture.rgb.shape
-    u, v = pixel_grid(w, h)
-    u, v = u.ravel(), v.ravel()
+    v, u = np.mgrid[0:h, 0:w]
+    uc, vc = u.ravel() + 0.5, v.ravel() + 0.5  # pixel centres
     for t in list(frames)[:: max(1, config.frame_stride)]:
         z = capture.depth[t].ravel().astype(np.float64)
         ok = np.isfinite(z) & (z > 0.05) & (z < config.max_depth_m)
@@ -56,10 +55,15 @@ def backproject_depth(
             ok &= weight > 0  # confidence 0 carries no information
         if not ok.any():
             continue
-        cam = backproject(z[ok], capture.depth_intrinsics[t], u[ok], v[ok])
+        fx, fy, cx, cy = capture.depth_intrinsics[t]
+        x = (uc[ok] - cx) / fx * z[ok]
+        y = (vc[ok] - cy) / fy * z[ok]
+        cam = np.stack([x, y, z[ok]], axis=1)
         # Colour: project the camera-space point into the RGB image of the same frame.
-        uv, _ = project(cam, capture.rgb_intrinsics[t])
-        col = _bilinear(capture.rgb[t].astype(np.float32) / 255.0, uv[:, 0], uv[:, 1], wr, hr)
+        rfx, rfy, rcx, rcy = capture.rgb_intrinsics[t]
+        ur = rfx * cam[:, 0] / cam[:, 2] + rcx - 0.5
+        vr = rfy * cam[:, 1] / cam[:, 2] + rcy - 0.5
+        col = _bilinear(capture.rgb[t].astype(np.float32) / 255.0, ur, vr, wr, hr)
         pose = world_from_camera[t]
         pts.append(cam @ pose[:3, :3].T + pose[:3, 3])
         cols.append(col)

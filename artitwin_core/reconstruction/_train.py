@@ -21,7 +21,7 @@ import torch
 from artitwin_core import progress
 from artitwin_core.capture import Capture
 from artitwin_core.gaussians import LABEL_BACKGROUND, GaussianParams, adam_step, rasterize
-from artitwin_core.geometry import invert_se3, raster_intrinsics
+from artitwin_core.geometry import invert_se3
 from artitwin_core.reconstruction._config import TrainConfig
 from artitwin_core.reconstruction._losses import depth_l1, photometric_loss
 from artitwin_core.reconstruction._sensor import SensorModel, SensorParams
@@ -80,10 +80,10 @@ def depth_on_rgb_grid(capture: Capture, t: int, min_confidence: int = 1) -> tupl
     _, h, w = capture.depth.shape
     rfx, rfy, rcx, rcy = capture.rgb_intrinsics[t]
     dfx, dfy, dcx, dcy = capture.depth_intrinsics[t]
-    # Each RGB pixel centre's ray through the depth camera (same centre, own intrinsics); the
-    # nearest depth pixel is rint, pixel centres lying at integers (artitwin_core.geometry).
-    ui = np.rint((np.arange(wr) - rcx) / rfx * dfx + dcx).astype(np.int64)
-    vi = np.rint((np.arange(hr) - rcy) / rfy * dfy + dcy).astype(np.int64)
+    u = (np.arange(wr) + 0.5 - rcx) / rfx * dfx + dcx
+    v = (np.arange(hr) + 0.5 - rcy) / rfy * dfy + dcy
+    ui = np.floor(u).astype(np.int64)
+    vi = np.floor(v).astype(np.int64)
     inside = (ui[None, :] >= 0) & (ui[None, :] < w) & (vi[:, None] >= 0) & (vi[:, None] < h)
     d = capture.depth[t][np.clip(vi, 0, h - 1)][:, np.clip(ui, 0, w - 1)]
     weight = np.where(inside & np.isfinite(d) & (d > 0), 1.0, 0.0)
@@ -233,12 +233,11 @@ def render_params(
     sh_degree: int,
     config: TrainConfig,
 ):
-    """Render the state's parameters into one view (``RenderOutput``); ``intrinsics`` are the data's
-    (pixel centres at integers), converted here for the rasterizer."""
+    """Render the state's parameters into one view (``RenderOutput``)."""
     sh = torch.cat([params["sh_dc"], params["sh_rest"]], dim=1)
     return rasterize(
         params["means"], params["quats_wxyz"], params["log_scales"], params["opacity_logits"], sh,
-        cam_from_world, tuple(float(x) for x in raster_intrinsics(intrinsics)), width, height,
+        cam_from_world, tuple(float(x) for x in intrinsics), width, height,
         sh_degree=sh_degree, background=background_tensor(config.background, params["means"].device),
         backend=config.backend,
     )  # fmt: skip

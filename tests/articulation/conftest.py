@@ -11,7 +11,7 @@ import pytest
 import torch
 
 from artitwin_core.gaussians import GaussianParams
-from artitwin_core.geometry import invert_se3, nearest_pixel, project
+from artitwin_core.geometry import invert_se3
 from artitwin_core.masks import MaskSequence
 from artitwin_core.reconstruction import (
     InitConfig,
@@ -73,7 +73,10 @@ def gt_part_gaussians(tiny_scene, canonical) -> np.ndarray:
         _, depth, part = render_state(tiny_scene, pose, cap.rgb_intrinsics[t], w, h, [q[t]])
         cam = invert_se3(pose)
         x = canonical.means.astype(np.float64) @ cam[:3, :3].T + cam[:3, 3]
-        u, v = nearest_pixel(project(x, cap.rgb_intrinsics[t], min_z=1e-3)[0])
+        fx, fy, cx, cy = cap.rgb_intrinsics[t]
+        z = np.where(x[:, 2] > 1e-3, x[:, 2], 1.0)
+        u = np.floor(fx * x[:, 0] / z + cx).astype(np.int64)
+        v = np.floor(fy * x[:, 1] / z + cy).astype(np.int64)
         i = np.nonzero((x[:, 2] > 1e-3) & (u >= 0) & (u < w) & (v >= 0) & (v < h))[0]
         surf = np.abs(x[i, 2] - depth[v[i], u[i]]) < 0.02
         on_surface[i[surf]] += 1

@@ -6,7 +6,7 @@ import dataclasses
 
 import numpy as np
 
-from artitwin_core.geometry import invert_se3, nearest_pixel, project
+from artitwin_core.geometry import invert_se3
 from artitwin_core.reconstruction import InitConfig, init_gaussians, split_frames
 from artitwin_core.reconstruction._init import voxel_downsample
 
@@ -45,8 +45,10 @@ def _surface_gaps(points, cap, scene, gt_depth, frames):
     for t in frames:
         cw = invert_se3(truth[t])
         p = points @ cw[:3, :3].T + cw[:3, 3]
+        fx, fy, cx, cy = cap.rgb_intrinsics[t]
         p = p[p[:, 2] > 0.1]
-        u, v = nearest_pixel(project(p, cap.rgb_intrinsics[t])[0])
+        u = np.floor(fx * p[:, 0] / p[:, 2] + cx).astype(int)
+        v = np.floor(fy * p[:, 1] / p[:, 2] + cy).astype(int)
         inside = (u >= 0) & (u < cap.rgb_size[0]) & (v >= 0) & (v < cap.rgb_size[1])
         d = gt_depth[t][v[inside], u[inside]]
         gap = np.abs(p[inside, 2] - d)
