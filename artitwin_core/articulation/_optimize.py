@@ -30,7 +30,15 @@ from artitwin_core.articulation._kinematics import (
     move_by_label,
     part_motions,
 )
-from artitwin_core.gaussians import LABEL_BACKGROUND, LABEL_INTERIOR, LABEL_PART, GaussianParams, rasterize
+from artitwin_core.gaussians import (
+    LABEL_BACKGROUND,
+    LABEL_INTERIOR,
+    LABEL_PART,
+    GaussianParams,
+    adam_step,
+    edit_rows,
+    rasterize,
+)
 from artitwin_core.gaussians._sh import SH_C0
 from artitwin_core.joints import Joint
 from artitwin_core.reconstruction import TrainViews
@@ -38,8 +46,6 @@ from artitwin_core.reconstruction._losses import depth_l1, photometric_loss, psn
 from artitwin_core.reconstruction._train import background_tensor, view_index
 
 PARAM_NAMES = ("means", "quats_wxyz", "log_scales", "opacity_logits", "sh_dc", "sh_rest")
-_BETAS = (0.9, 0.999)
-_EPS = 1e-15
 
 
 @dataclass
@@ -181,20 +187,18 @@ class ArticulationState:
         add = None
         if new is not None and new.num_gaussians:
             add = ArticulationState.from_params(new, self.extent, device=self.device)
-        for name in PARAM_NAMES:
-            p = self.params[name].detach()[keep]
-            m, v = self.exp_avg[name][keep], self.exp_avg_sq[name][keep]
-            if add is not None:
-                extra = add.params[name].detach()
-                if extra.shape[1:] != p.shape[1:]:  # fewer SH bands in the seeds: pad with zeros
-                    pad = torch.zeros((extra.shape[0], *p.shape[1:]), dtype=p.dtype, device=p.device)
+        rows = None
+        if add is not None:
+            rows = {}
+            for name, extra in add.params.items():
+                extra = extra.detach()
+                shape = self.params[name].shape[1:]
+                if extra.shape[1:] != shape:  # fewer SH bands in the seeds: pad with zeros
+                    pad = torch.zeros((extra.shape[0], *shape), dtype=extra.dtype, device=extra.device)
                     pad[:, : extra.shape[1]] = extra
                     extra = pad
-                p = torch.cat([p, extra])
-                m = torch.cat([m, torch.zeros_like(extra)])
-                v = torch.cat([v, torch.zeros_like(extra)])
-            self.params[name] = p.contiguous().requires_grad_(True)
-            self.exp_avg[name], self.exp_avg_sq[name] = m.contiguous(), v.contiguous()
+                rows[name] = extra
+        edit_rows(self.params, (self.exp_avg, self.exp_avg_sq), keep, rows)
         labels = self.labels[keep]
         if add is not None:
             labels = torch.cat([labels, add.labels])
@@ -394,30 +398,9 @@ def _adam(
     lrs = {k: lr_scale * v for k, v in lrs.items()}
     t = state.step + 1
     for name, p in state.params.items():
-        mask = None if trainable is None else trainable.view(-1, *([1] * (p.dim() - 1))).to(p.dtype)
-        _adam_update(p, state.exp_avg[name], state.exp_avg_sq[name], lrs[name], t, mask)
+        adam_step(p, state.exp_avg[name], state.exp_avg_sq[name], lrs[name], t, trainable)
     if state.log_gain.numel():
-        _adam_update(
-            state.log_gain, state.gain_avg, state.gain_avg_sq, lr_scale * config.lr_part_gain, t, None
-        )
-
-
-def _adam_update(
-    p: torch.Tensor, m: torch.Tensor, v: torch.Tensor, lr: float, t: int, mask: torch.Tensor | None
-) -> None:
-    """One Adam step on ``p`` in place; rows where ``mask`` is 0 neither move nor gather moments."""
-    g = p.grad
-    if g is None:
-        return
-    if mask is not None:
-        g = g * mask
-    b1, b2 = _BETAS
-    m.mul_(b1).add_(g, alpha=1 - b1)
-    v.mul_(b2).addcmul_(g, g, value=1 - b2)
-    upd = lr * (m / (1 - b1**t)) / ((v / (1 - b2**t)).sqrt() + _EPS)
-    if mask is not None:
-        upd = upd * mask
-    p.sub_(upd)
+        adam_step(state.log_gain, state.gain_avg, state.gain_avg_sq, lr_scale * config.lr_part_gain, t)
 
 
 def view_loss(

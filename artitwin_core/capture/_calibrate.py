@@ -33,6 +33,8 @@ from artitwin_core.capture._drift import (
     sift_matches,
 )
 from artitwin_core.capture._types import Capture
+from artitwin_core.geometry import backproject
+from artitwin_core.geometry import pixel_rays as camera_rays
 
 
 def calibrate_depth(capture: Capture, scale: float, offset_m: float) -> Capture:
@@ -94,10 +96,7 @@ class DepthCalibration:
 
 def _normals(z: np.ndarray, k: np.ndarray) -> np.ndarray:
     """``[H, W, 3]`` unit normals (camera frame) of a z-depth map, NaN where undefined."""
-    fx, fy, cx, cy = k
-    h, w = z.shape
-    u, v = np.meshgrid(np.arange(w, dtype=np.float64), np.arange(h, dtype=np.float64))
-    p = np.stack([(u - cx) / fx * z, (v - cy) / fy * z, z], -1)
+    p = backproject(z, k)
     du, dv = np.full_like(p, np.nan), np.full_like(p, np.nan)
     du[:, 1:-1] = p[:, 2:] - p[:, :-2]
     dv[1:-1] = p[2:] - p[:-2]
@@ -122,7 +121,7 @@ def _pair_terms(capture: Capture, poses: np.ndarray, i: int, j: int, a: float, b
     u, v, di = u[ok].astype(np.float64), v[ok].astype(np.float64), di[ok]
     ri, ci = poses[i][:3, :3], poses[i][:3, 3]
     rj, cj = poses[j][:3, :3], poses[j][:3, 3]
-    ray_i = np.stack([(u - ki[2]) / ki[0], (v - ki[3]) / ki[1], np.ones_like(u)], -1) @ ri.T
+    ray_i = camera_rays(ki, u, v) @ ri.T
     y = (ci + (a * di + b)[:, None] * ray_i - cj) @ rj
     z = y[:, 2]
     with np.errstate(divide="ignore", invalid="ignore"):

@@ -18,6 +18,7 @@ import numpy as np
 
 from artitwin_core.capture._types import Capture
 from artitwin_core.geometry import axis_angle_to_matrix, invert_se3, make_se3
+from artitwin_core.geometry import pixel_rays as camera_rays
 
 
 def _rigid_about(pivot: np.ndarray, rotvec: np.ndarray, trans: np.ndarray) -> np.ndarray:
@@ -270,6 +271,5 @@ def ray_normals(rays: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
 
 def pixel_rays(intrinsics, pixels: np.ndarray, world_from_camera: np.ndarray) -> np.ndarray:
     """``[N, 3]`` world directions (camera z = 1) of ``pixels [N, 2]``."""
-    k = np.asarray(intrinsics, float)
-    cam = np.stack([(pixels[:, 0] - k[2]) / k[0], (pixels[:, 1] - k[3]) / k[1], np.ones(len(pixels))], -1)
+    cam = camera_rays(intrinsics, pixels[:, 0], pixels[:, 1])
     return cam @ np.asarray(world_from_camera, float)[:3, :3].T

@@ -18,6 +18,7 @@ import numpy as np
 
 from artitwin_core.capture._config import KeyframeConfig
 from artitwin_core.capture._types import Capture
+from artitwin_core.geometry import backproject
 
 
 @dataclass(frozen=True)
@@ -46,9 +47,7 @@ def _points(capture: Capture, t: int, step: int) -> tuple[np.ndarray, np.ndarray
     ok = np.isfinite(d) & (d > 0)
     if capture.confidence is not None:
         ok &= capture.confidence[t, ::step, ::step] >= 1
-    fx, fy, cx, cy = capture.depth_intrinsics[t]
-    z = d[ok].astype(np.float64)
-    cam = np.stack([(uu[ok] - cx) / fx * z, (vv[ok] - cy) / fy * z, z], 1)
+    cam = backproject(d[ok], capture.depth_intrinsics[t], uu[ok], vv[ok])
     pose = capture.world_from_camera[t]
     return cam @ pose[:3, :3].T + pose[:3, 3], np.stack([uu[ok], vv[ok]], 1)
 

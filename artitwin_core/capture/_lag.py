@@ -30,7 +30,7 @@ import numpy as np
 from artitwin_core._errors import InputError
 from artitwin_core.capture._config import PoseLagConfig
 from artitwin_core.capture._types import Capture
-from artitwin_core.geometry import interpolate_poses, invert_se3
+from artitwin_core.geometry import backproject, interpolate_poses, invert_se3
 
 
 @dataclass(frozen=True)
@@ -334,9 +334,8 @@ def _draw_pairs(depth: np.ndarray, intrinsics: np.ndarray, used: np.ndarray, cfg
         if len(uv) == 0:
             continue
         pick = uv[rng.choice(len(uv), min(per_pair, len(uv)), replace=False)]
-        fx, fy, cx, cy = (float(x) for x in intrinsics[i])
         z = depth[i][pick[:, 1], pick[:, 0]]
-        points.append(np.stack([(pick[:, 0] - cx) / fx * z, (pick[:, 1] - cy) / fy * z, z], 1))
+        points.append(backproject(z, intrinsics[i], pick[:, 0], pick[:, 1]))
         pair_of.append(np.full(len(pick), len(keep)))
         keep.append(p)
     if not keep:

@@ -15,7 +15,7 @@ import open3d as o3d
 
 from artitwin_core._errors import InputError
 from artitwin_core.capture import Capture
-from artitwin_core.geometry import invert_se3
+from artitwin_core.geometry import invert_se3, pixel_grid, pixel_rays
 
 
 @dataclass
@@ -60,9 +60,7 @@ class CanonicalMesh:
             rgb ``[H, W, 3]`` uint8 (vertex colours, barycentric), depth ``[H, W]`` float32 z-depth
             metres (NaN = no surface), triangle ``[H, W]`` int64 hit triangle id (-1 = none).
         """
-        fx, fy, cx, cy = (float(x) for x in intrinsics)
-        u, v = np.meshgrid(np.arange(width, dtype=np.float64), np.arange(height, dtype=np.float64))
-        dirs_cam = np.stack([(u - cx) / fx, (v - cy) / fy, np.ones_like(u)], -1)
+        dirs_cam = pixel_rays(intrinsics, *pixel_grid(width, height))
         rot, origin = world_from_camera[:3, :3], world_from_camera[:3, 3]
         dirs = dirs_cam @ rot.T
         rays = np.concatenate([np.broadcast_to(origin, dirs.shape), dirs], -1).astype(np.float32)

@@ -34,7 +34,7 @@ from scipy.ndimage import gaussian_filter
 from artitwin_core.diagnostics._patch import drift_columns
 from artitwin_core.diagnostics._plugin import Effect, Evidence, register_effect
 from artitwin_core.diagnostics._residuals import ResidualData
-from artitwin_core.geometry import axis_angle_to_matrix
+from artitwin_core.geometry import axis_angle_to_matrix, backproject, pixel_grid
 
 
 def _binned_mean(x: np.ndarray, y: np.ndarray, n: int) -> tuple[np.ndarray, np.ndarray]:
@@ -269,11 +269,8 @@ def _rotate(rot: np.ndarray, points: np.ndarray) -> np.ndarray:
 
 def _backproject(depth: np.ndarray, k: np.ndarray, world_from_camera: np.ndarray) -> np.ndarray:
     """``[T, h, w, 3]`` world points (metres) of z-depth maps ``[T, h, w]`` (NaN stays NaN)."""
-    t_count, h, w = depth.shape
-    u, v = np.meshgrid(np.arange(w, dtype=np.float64), np.arange(h, dtype=np.float64))
-    k = k[:, :, None, None]
-    z = depth.astype(np.float64)
-    cam = np.stack([(u[None] - k[:, 2]) / k[:, 0] * z, (v[None] - k[:, 3]) / k[:, 1] * z, z], -1)
+    u, v = pixel_grid(depth.shape[2], depth.shape[1])
+    cam = backproject(depth, k, u[None], v[None])
     return _rotate(world_from_camera[:, :3, :3], cam) + world_from_camera[:, None, None, :3, 3]
 
 

@@ -21,6 +21,7 @@ import numpy as np
 
 from artitwin_core._errors import InputError
 from artitwin_core.diagnostics._residuals import ResidualData, make_residual_data, track_model_from_joint
+from artitwin_core.geometry import backproject
 from artitwin_core.joints import JointFitConfig, estimate_joint
 from artitwin_core.synth import SyntheticScene, render_state
 from artitwin_core.tracking import Trajectories
@@ -37,12 +38,11 @@ def _closed_part_points(scene: SyntheticScene, part: int, n_points: int, rng: np
         sel = (mask == part + 1) & np.isfinite(depth)
         if best is None or sel.sum() > best[0].sum():
             best = (sel, depth, k, truth.static_world_from_camera[t])
-    sel, depth, (fx, fy, cx, cy), pose = best
+    sel, depth, k, pose = best
     v, u = np.nonzero(sel)
     pick = rng.choice(len(u), size=min(n_points, len(u)), replace=False)
     u, v = u[pick], v[pick]
-    z = depth[v, u].astype(np.float64)
-    cam = np.stack([(u - cx) / fx * z, (v - cy) / fy * z, z], 1)
+    cam = backproject(depth[v, u], k, u, v)
     return cam @ pose[:3, :3].T + pose[:3, 3]
 
 

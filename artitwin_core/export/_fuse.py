@@ -21,16 +21,12 @@ from scipy.spatial import cKDTree
 
 from artitwin_core._errors import InputError
 from artitwin_core.capture._types import Capture
-from artitwin_core.geometry import invert_se3
+from artitwin_core.geometry import backproject, invert_se3
 
 
 def _backproject(depth: np.ndarray, intr: np.ndarray) -> np.ndarray:
     """``[h, w, 3]`` camera-frame points (metres, OpenCV axes) of a z-depth map ``[h, w]``."""
-    h, w = depth.shape
-    fx, fy, cx, cy = intr
-    u, v = np.meshgrid(np.arange(w, dtype=np.float64), np.arange(h, dtype=np.float64))
-    z = depth.astype(np.float64)
-    return np.stack([(u - cx) / fx * z, (v - cy) / fy * z, z], -1)
+    return backproject(depth, intr)
 
 
 def _mask_at_depth_res(mask: np.ndarray, size_wh: tuple[int, int], erode_px: int) -> np.ndarray:

@@ -11,17 +11,7 @@ import torch
 
 from artitwin_core.gaussians._project import ALPHA_MAX, ALPHA_MIN, EPS2D, FAR, T_MIN
 from artitwin_core.gaussians._sh import eval_sh_colors
-
-
-def _quat_to_matrix(q: torch.Tensor) -> torch.Tensor:
-    q = q / q.norm(dim=-1, keepdim=True)
-    w, x, y, z = q.unbind(-1)
-    rows = [
-        torch.stack([1 - 2 * (y * y + z * z), 2 * (x * y - w * z), 2 * (x * z + w * y)], -1),
-        torch.stack([2 * (x * y + w * z), 1 - 2 * (x * x + z * z), 2 * (y * z - w * x)], -1),
-        torch.stack([2 * (x * z - w * y), 2 * (y * z + w * x), 1 - 2 * (x * x + y * y)], -1),
-    ]
-    return torch.stack(rows, -2)
+from artitwin_core.geometry import quat_wxyz_to_matrix
 
 
 def rasterize_reference(
@@ -37,8 +27,8 @@ def rasterize_reference(
     p_cam = torch.where(valid[:, None], p_cam, torch.tensor([0.0, 0.0, 1.0], dtype=means.dtype))
     x, y, z = p_cam.unbind(-1)
 
-    cov_world = _quat_to_matrix(quats_wxyz) @ torch.diag_embed(torch.exp(2 * log_scales))
-    cov_world = cov_world @ _quat_to_matrix(quats_wxyz).transpose(-1, -2)
+    cov_world = quat_wxyz_to_matrix(quats_wxyz) @ torch.diag_embed(torch.exp(2 * log_scales))
+    cov_world = cov_world @ quat_wxyz_to_matrix(quats_wxyz).transpose(-1, -2)
     cov_cam = rot @ cov_world @ rot.T
 
     # Jacobian of the pinhole projection at the mean, with x/z, y/z clamped to 1.3x the FOV.

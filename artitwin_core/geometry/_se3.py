@@ -9,55 +9,6 @@ import numpy as np
 OPENGL_FROM_OPENCV = np.diag([1.0, -1.0, -1.0, 1.0])
 
 
-def quat_wxyz_to_matrix(q: np.ndarray) -> np.ndarray:
-    """Unit quaternions ``[..., 4]`` (w, x, y, z) to rotation matrices ``[..., 3, 3]``.
-
-    The quaternion is normalised first; a zero quaternion raises ``ValueError``.
-    """
-    q = np.asarray(q, dtype=np.float64)
-    norm = np.linalg.norm(q, axis=-1, keepdims=True)
-    if np.any(norm < 1e-12):
-        raise ValueError("zero-length quaternion")
-    w, x, y, z = np.moveaxis(q / norm, -1, 0)
-    return np.stack(
-        [
-            np.stack([1 - 2 * (y * y + z * z), 2 * (x * y - w * z), 2 * (x * z + w * y)], -1),
-            np.stack([2 * (x * y + w * z), 1 - 2 * (x * x + z * z), 2 * (y * z - w * x)], -1),
-            np.stack([2 * (x * z - w * y), 2 * (y * z + w * x), 1 - 2 * (x * x + y * y)], -1),
-        ],
-        -2,
-    )
-
-
-def matrix_to_quat_wxyz(rot: np.ndarray) -> np.ndarray:
-    """Rotation matrices ``[..., 3, 3]`` to unit quaternions ``[..., 4]`` (w, x, y, z), w >= 0."""
-    rot = np.asarray(rot, dtype=np.float64)
-    batch = rot.shape[:-2]
-    m = rot.reshape(-1, 3, 3)
-    out = np.empty((m.shape[0], 4))
-    tr = np.trace(m, axis1=1, axis2=2)
-    # Shepperd's method: pick the largest of (w, x, y, z) to divide by, for stability.
-    cand = np.stack([tr, m[:, 0, 0], m[:, 1, 1], m[:, 2, 2]], -1)
-    pick = np.argmax(cand, -1)
-    for i in range(m.shape[0]):
-        r = m[i]
-        if pick[i] == 0:
-            s = np.sqrt(max(tr[i] + 1.0, 0.0)) * 2
-            out[i] = [0.25 * s, (r[2, 1] - r[1, 2]) / s, (r[0, 2] - r[2, 0]) / s, (r[1, 0] - r[0, 1]) / s]
-        elif pick[i] == 1:
-            s = np.sqrt(max(1.0 + r[0, 0] - r[1, 1] - r[2, 2], 0.0)) * 2
-            out[i] = [(r[2, 1] - r[1, 2]) / s, 0.25 * s, (r[0, 1] + r[1, 0]) / s, (r[0, 2] + r[2, 0]) / s]
-        elif pick[i] == 2:
-            s = np.sqrt(max(1.0 + r[1, 1] - r[0, 0] - r[2, 2], 0.0)) * 2
-            out[i] = [(r[0, 2] - r[2, 0]) / s, (r[0, 1] + r[1, 0]) / s, 0.25 * s, (r[1, 2] + r[2, 1]) / s]
-        else:
-            s = np.sqrt(max(1.0 + r[2, 2] - r[0, 0] - r[1, 1], 0.0)) * 2
-            out[i] = [(r[1, 0] - r[0, 1]) / s, (r[0, 2] + r[2, 0]) / s, (r[1, 2] + r[2, 1]) / s, 0.25 * s]
-    out /= np.linalg.norm(out, axis=-1, keepdims=True)
-    out[out[:, 0] < 0] *= -1
-    return out.reshape(*batch, 4)
-
-
 def axis_angle_to_matrix(axis: np.ndarray, angle: np.ndarray | float) -> np.ndarray:
     """Rodrigues: unit ``axis [3]`` and ``angle`` (radians, scalar or ``[N]``) to ``[..., 3, 3]``."""
     axis = np.asarray(axis, dtype=np.float64)

@@ -6,12 +6,12 @@ each is hashable and printable, so a run is described by its config alone.
 
 from __future__ import annotations
 
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, fields
 
 import numpy as np
 
 from artitwin_core._errors import InputError
-from artitwin_core.gaussians import BackendName
+from artitwin_core.gaussians import BackendName, DensifyStrategy
 from artitwin_core.reconstruction._sensor import check_sensor_effects
 
 
@@ -178,6 +178,10 @@ class TrainConfig:
         }
         sched.update(overrides)
         return cls(**sched)
+
+    def densify_strategy(self) -> DensifyStrategy:
+        """This config's densification, pruning and opacity-reset settings as the strategy takes them."""
+        return DensifyStrategy(**{f.name: getattr(self, f.name) for f in fields(DensifyStrategy)})
 
     def __post_init__(self) -> None:
         if self.steps < 1:

@@ -38,6 +38,8 @@ import numpy as np
 import torch
 import torch.nn.functional as F
 
+from artitwin_core.gaussians import adam_step
+
 _UNDISTORT_ITERATIONS = 10
 
 SENSOR_EFFECTS = ("exposure_white_balance", "vignetting", "depth_scale_offset")
@@ -265,21 +267,14 @@ class SensorParams:
         for p in self.params.values():
             p.grad = None
 
-    @torch.no_grad()
-    def adam_step(self, step: int, lr: float, betas=(0.9, 0.999), eps: float = 1e-15) -> None:
-        """Adam on the parameters that got a gradient (per-view rows only see their own steps)."""
-        b1, b2 = betas
+    def adam_step(self, step: int, lr: float) -> None:
+        """Adam on the parameters that got a gradient. Every row steps, also the other views' rows of
+        ``log_gain`` and ``offset`` (zero gradient, but momentum): as before the shared Adam step."""
         for name, p in self.params.items():
-            if p.grad is None:
-                continue
-            m, v = self.exp_avg[name], self.exp_avg_sq[name]
-            m.mul_(b1).add_(p.grad, alpha=1 - b1)
-            v.mul_(b2).addcmul_(p.grad, p.grad, value=1 - b2)
-            t = step + 1
             # The depth scale is shared by every view and multiplies metres: a smaller step keeps it
             # from chasing one view's noise.
             scale = 0.1 if name == "depth_affine" else 1.0
-            p.sub_(scale * lr * (m / (1 - b1**t)) / ((v / (1 - b2**t)).sqrt() + eps))
+            adam_step(p, self.exp_avg[name], self.exp_avg_sq[name], scale * lr, step + 1)
 
     def to_model(self) -> SensorModel:
         p = {k: v.detach().cpu().numpy().astype(np.float64) for k, v in self.params.items()}

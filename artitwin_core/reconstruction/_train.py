@@ -1,4 +1,4 @@
-"""3DGS optimisation with explicit state: Adam, densification, pruning, opacity reset.
+"""3DGS optimisation with explicit state: one view per step, Adam, then the densification strategy.
 
 Everything that changes during training lives in :class:`TrainState` (parameters, Adam moments,
 densification statistics, the step counter), and every hyperparameter in the frozen
@@ -20,15 +20,13 @@ import torch
 
 from artitwin_core import progress
 from artitwin_core.capture import Capture
-from artitwin_core.gaussians import LABEL_BACKGROUND, GaussianParams, rasterize
+from artitwin_core.gaussians import LABEL_BACKGROUND, GaussianParams, adam_step, rasterize
 from artitwin_core.geometry import invert_se3
 from artitwin_core.reconstruction._config import TrainConfig
 from artitwin_core.reconstruction._losses import depth_l1, photometric_loss
 from artitwin_core.reconstruction._sensor import SensorModel, SensorParams
 
 PARAM_NAMES = ("means", "quats_wxyz", "log_scales", "opacity_logits", "sh_dc", "sh_rest")
-_ADAM_BETAS = (0.9, 0.999)
-_ADAM_EPS = 1e-15  # as the 3DGS reference code
 
 
 @dataclass
@@ -293,33 +291,16 @@ def train_step(state: TrainState, views: TrainViews, config: TrainConfig) -> flo
     if sensor:
         sensor.zero_grad()
     loss.backward()
+    strategy = config.densify_strategy()
     with torch.no_grad():
-        _accumulate_stats(state, out, w, h)
+        strategy.accumulate(state, out.means2d_grad, out.radii, w, h)
         _adam_update(state, config)
         if sensor:
             sensor.adam_step(state.step, config.lr_sensor)
     state.step += 1
     state.losses.append(float(loss.detach()))
-    s = state.step
-    if config.densify_from <= s <= config.densify_until and s % config.densify_every == 0:
-        densify_and_prune(state, config)
-    if config.opacity_reset_every > 0 and s % config.opacity_reset_every == 0 and s <= config.densify_until:
-        reset_opacity(state, config)
+    strategy.after_step(state)
     return state.losses[-1]
-
-
-def _accumulate_stats(state: TrainState, out, width: int, height: int) -> None:
-    g = out.means2d_grad
-    if g is None:
-        return
-    # Masked arithmetic rather than indexing by the visible set: no host sync per step on a GPU.
-    vis = out.radii > 0
-    # 3DGS measures the gradient w.r.t. NDC coordinates: d(px)/d(ndc) = (W/2, H/2).
-    g = g.detach().float()
-    gn = torch.linalg.norm(torch.stack([g[:, 0] * (width / 2.0), g[:, 1] * (height / 2.0)], dim=-1), dim=-1)
-    state.grad_accum += torch.where(vis, gn, 0.0)
-    state.grad_count += vis.to(state.grad_count.dtype)
-    state.max_radii.copy_(torch.where(vis, torch.maximum(state.max_radii, out.radii.detach().float()), state.max_radii))
 
 
 def _adam_update(state: TrainState, config: TrainConfig) -> None:
@@ -331,96 +312,19 @@ def _adam_update(state: TrainState, config: TrainConfig) -> None:
         "sh_dc": config.lr_sh_dc,
         "sh_rest": config.lr_sh_rest,
     }
-    b1, b2 = _ADAM_BETAS
     t = state.step + 1
-    bc1, bc2 = 1 - b1**t, 1 - b2**t
     for name, p in state.params.items():
-        if p.grad is None:
-            continue
-        m, v = state.exp_avg[name], state.exp_avg_sq[name]
-        m.mul_(b1).add_(p.grad, alpha=1 - b1)
-        v.mul_(b2).addcmul_(p.grad, p.grad, value=1 - b2)
-        p.sub_(lrs[name] * (m / bc1) / ((v / bc2).sqrt() + _ADAM_EPS))
-
-
-def _replace(state: TrainState, keep: torch.Tensor, new: dict[str, torch.Tensor] | None) -> None:
-    """Keep rows ``keep`` of every parameter (and its Adam moments), then append ``new`` rows
-    (with zero moments), as 3DGS does when it edits the optimiser's tensors."""
-    for name in PARAM_NAMES:
-        p = state.params[name].detach()[keep]
-        m, v = state.exp_avg[name][keep], state.exp_avg_sq[name][keep]
-        if new is not None:
-            p = torch.cat([p, new[name]])
-            m = torch.cat([m, torch.zeros_like(new[name])])
-            v = torch.cat([v, torch.zeros_like(new[name])])
-        state.params[name] = p.contiguous().requires_grad_(True)
-        state.exp_avg[name], state.exp_avg_sq[name] = m.contiguous(), v.contiguous()
-    n, dev = state.num_gaussians, state.device
-    state.grad_accum = torch.zeros(n, device=dev)
-    state.grad_count = torch.zeros(n, device=dev)
-    state.max_radii = torch.zeros(n, device=dev)
-
-
-def _quat_to_rotmat(q: torch.Tensor) -> torch.Tensor:
-    q = q / q.norm(dim=-1, keepdim=True).clamp_min(1e-12)
-    w, x, y, z = q.unbind(-1)
-    return torch.stack([
-        1 - 2 * (y * y + z * z), 2 * (x * y - w * z), 2 * (x * z + w * y),
-        2 * (x * y + w * z), 1 - 2 * (x * x + z * z), 2 * (y * z - w * x),
-        2 * (x * z - w * y), 2 * (y * z + w * x), 1 - 2 * (x * x + y * y),
-    ], dim=-1).reshape(-1, 3, 3)  # fmt: skip
+        adam_step(p, state.exp_avg[name], state.exp_avg_sq[name], lrs[name], t)
 
 
 def densify_and_prune(state: TrainState, config: TrainConfig) -> dict[str, int]:
-    """Clone small and split large Gaussians with high view-space gradients; prune faint and
-    huge ones (3DGS ``densify_and_prune``). Returns how many were cloned, split and pruned."""
-    with torch.no_grad():
-        p = {k: v.detach() for k, v in state.params.items()}
-        grads = torch.where(state.grad_count > 0, state.grad_accum / state.grad_count.clamp_min(1), 0.0)
-        max_scale = p["log_scales"].exp().max(dim=1).values
-        cand = grads >= config.grad_threshold
-        room = max(0, config.max_gaussians - state.num_gaussians)
-        if int(cand.sum()) > room:  # over budget: keep the strongest gradients only
-            order = torch.argsort(torch.where(cand, grads, -1.0), descending=True)
-            cand = torch.zeros_like(cand)
-            cand[order[:room]] = True
-        large = max_scale > config.percent_dense * state.extent
-        clone, split = cand & ~large, cand & large
-        new = {k: v[clone] for k, v in p.items()}
-        # Split: two samples from each large Gaussian, 1.6x smaller (3DGS).
-        idx = torch.nonzero(split).squeeze(1)
-        dev = state.device
-        gen = torch.Generator(device=dev).manual_seed(int(config.seed) * 1_000_003 + state.step)
-        if len(idx):
-            s = p["log_scales"][idx].exp()
-            rot = _quat_to_rotmat(p["quats_wxyz"][idx])
-            for _ in range(2):
-                offs = torch.randn(s.shape, generator=gen, device=dev) * s
-                new["means"] = torch.cat([new["means"], p["means"][idx] + (rot @ offs[:, :, None])[:, :, 0]])
-                new["log_scales"] = torch.cat([new["log_scales"], torch.log(s / 1.6)])
-                for k in ("quats_wxyz", "opacity_logits", "sh_dc", "sh_rest"):
-                    new[k] = torch.cat([new[k], p[k][idx]])
-        opacity = torch.sigmoid(p["opacity_logits"])
-        prune = split | (opacity < config.min_opacity)
-        if config.opacity_reset_every > 0 and state.step > config.opacity_reset_every:
-            prune |= state.max_radii > config.max_screen_radius_px
-        prune |= max_scale > config.max_world_scale * state.extent
-        # Never empty the model.
-        if bool(prune.all()) and not len(new["means"]):
-            prune[:] = False
-        stats = {"cloned": int(clone.sum()), "split": int(split.sum()), "pruned": int((prune & ~split).sum())}
-        _replace(state, ~prune, new)
-    return stats
+    """Clone, split and prune now, as :class:`DensifyStrategy` does on its schedule."""
+    return config.densify_strategy().densify_and_prune(state)
 
 
 def reset_opacity(state: TrainState, config: TrainConfig) -> None:
-    """Clamp every opacity to at most ``opacity_reset_value`` (3DGS), zeroing its Adam moments."""
-    with torch.no_grad():
-        cap = math.log(config.opacity_reset_value / (1 - config.opacity_reset_value))
-        logits = state.params["opacity_logits"].detach().clamp(max=cap)
-        state.params["opacity_logits"] = logits.contiguous().requires_grad_(True)
-        state.exp_avg["opacity_logits"].zero_()
-        state.exp_avg_sq["opacity_logits"].zero_()
+    """Cap every opacity now, as :class:`DensifyStrategy` does on its schedule."""
+    config.densify_strategy().reset_opacity(state)
 
 
 def train(

@@ -7,6 +7,8 @@ import open3d as o3d
 
 from artitwin_core._errors import InputError
 from artitwin_core.capture import Capture
+from artitwin_core.geometry import backproject as backproject_points
+from artitwin_core.geometry import nearest_pixel, project
 
 
 def backproject(depth: np.ndarray, intrinsics: np.ndarray, stride: int = 1) -> tuple[np.ndarray, np.ndarray]:
@@ -21,14 +23,12 @@ def backproject(depth: np.ndarray, intrinsics: np.ndarray, stride: int = 1) -> t
         points ``[N, 3]`` metres (OpenCV camera axes) and their pixel coordinates ``[N, 2]``
         ``(u, v)`` of the valid pixels.
     """
-    fx, fy, cx, cy = (float(x) for x in intrinsics)
     d = depth[::stride, ::stride]
     v, u = np.nonzero(np.isfinite(d) & (d > 0))
     z = d[v, u].astype(np.float64)
     u = u * stride
     v = v * stride
-    pts = np.stack([(u - cx) / fx * z, (v - cy) / fy * z, z], -1)
-    return pts, np.stack([u, v], -1)
+    return backproject_points(z, intrinsics, u, v), np.stack([u, v], -1)
 
 
 def frame_points(
@@ -46,11 +46,10 @@ def frame_points(
         depth[capture.confidence[t] < min_confidence] = np.nan
     pts_cam, uv = backproject(depth, capture.depth_intrinsics[t], stride)
     # Colour: project the camera point into the RGB image (intrinsics may differ in scale).
-    fx, fy, cx, cy = capture.rgb_intrinsics[t]
     h, w = capture.rgb.shape[1:3]
-    z = np.maximum(pts_cam[:, 2], 1e-6)
-    ur = np.clip(np.rint(pts_cam[:, 0] / z * fx + cx), 0, w - 1).astype(np.int64)
-    vr = np.clip(np.rint(pts_cam[:, 1] / z * fy + cy), 0, h - 1).astype(np.int64)
+    uv, _ = project(pts_cam, capture.rgb_intrinsics[t], min_z=1e-6)
+    ur, vr = nearest_pixel(uv)
+    ur, vr = np.clip(ur, 0, w - 1), np.clip(vr, 0, h - 1)
     colours = capture.rgb[t][vr, ur].astype(np.float64) / 255.0
     pose = capture.world_from_camera[t]
     return pts_cam @ pose[:3, :3].T + pose[:3, 3], colours

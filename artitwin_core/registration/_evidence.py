@@ -26,6 +26,7 @@ import numpy as np
 from scipy import ndimage
 
 from artitwin_core.capture import Capture
+from artitwin_core.geometry import nearest_pixel, project
 from artitwin_core.registration._gravity_icp import PlaneTarget
 from artitwin_core.registration._texture import within_surface_correlation
 from artitwin_core.registration._types import HypothesisScore
@@ -108,12 +109,9 @@ def _project(points: np.ndarray, views: DepthViews, i: int, near_m: float):
     _, h, w = views.near_depth.shape
     m = views.camera_from_world[i]
     pc = points @ m[:3, :3].T + m[:3, 3]
-    z = pc[:, 2]
+    uv, z = project(pc, views.intrinsics[i], min_z=near_m)
     front = z > near_m
-    fx, fy, cx, cy = views.intrinsics[i]
-    zs = np.where(front, z, 1.0)
-    u = np.rint(pc[:, 0] / zs * fx + cx).astype(np.int64)
-    v = np.rint(pc[:, 1] / zs * fy + cy).astype(np.int64)
+    u, v = nearest_pixel(uv)
     return u, v, z, front & (u >= 0) & (u < w) & (v >= 0) & (v < h)
 
 

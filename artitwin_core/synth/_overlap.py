@@ -10,7 +10,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from artitwin_core.geometry import invert_se3
+from artitwin_core.geometry import backproject, invert_se3, nearest_pixel, project
 
 
 def overlap_fraction(
@@ -39,7 +39,6 @@ def overlap_fraction(
     Returns:
         The fraction in [0, 1] (pixels of all dynamic frames pooled); NaN if none is valid.
     """
-    fx, fy, cx, cy = (float(v) for v in intrinsics)
     h, w = dynamic_depth.shape[1:]
     v, u = np.mgrid[0:h:stride, 0:w:stride]
     points = []
@@ -48,7 +47,7 @@ def overlap_fraction(
         lab = dynamic_labels[i][v, u]
         ok = np.isfinite(z) & (lab != hand_label)
         z, lab = z[ok], lab[ok]
-        cam = np.stack([(u[ok] - cx) / fx * z, (v[ok] - cy) / fy * z, z], -1)
+        cam = backproject(z, intrinsics, u[ok], v[ok])
         pose = dynamic_world_from_camera[i]
         world = cam @ pose[:3, :3].T + pose[:3, 3]
         for k in np.unique(lab[lab >= 0]):
@@ -64,11 +63,9 @@ def overlap_fraction(
     for j in range(static_depth.shape[0]):
         cam_from_world = invert_se3(static_world_from_camera[j])
         pc = pts @ cam_from_world[:3, :3].T + cam_from_world[:3, 3]
-        z = pc[:, 2]
+        uv, z = project(pc, intrinsics, min_z=0.05)
         front = z > 0.05
-        zs = np.where(front, z, 1.0)
-        ui = np.rint(fx * pc[:, 0] / zs + cx).astype(np.int64)
-        vi = np.rint(fy * pc[:, 1] / zs + cy).astype(np.int64)
+        ui, vi = nearest_pixel(uv)
         inside = front & (ui >= 0) & (ui < sw) & (vi >= 0) & (vi < sh)
         idx = np.nonzero(inside & ~seen)[0]
         surface = static_depth[j][vi[idx], ui[idx]]

@@ -12,7 +12,8 @@ from dataclasses import dataclass
 import numpy as np
 import open3d as o3d
 
-from artitwin_core.geometry import invert_se3
+from artitwin_core.geometry import invert_se3, pixel_grid
+from artitwin_core.geometry import pixel_rays as camera_rays
 from artitwin_core.synth._scene import SceneModel, SceneObject, part_motion
 from artitwin_core.synth._textures import evaluate_texture
 
@@ -117,13 +118,10 @@ def pixel_rays(
         origins ``[H*W, 3]`` and directions ``[H*W, 3]`` in the world; a direction's
         camera-frame z is 1, so a hit's ray parameter is its z-depth in metres.
     """
-    fx, fy, cx, cy = (float(v) for v in intrinsics)
-    u, v = np.meshgrid(np.arange(width, dtype=np.float64), np.arange(height, dtype=np.float64))
-    if distortion is None:
-        x, y = (u - cx) / fx, (v - cy) / fy
-    else:
-        x, y = undistort_normalized((u - cx) / fx, (v - cy) / fy, distortion)
-    d_cam = np.stack([x, y, np.ones_like(x)], -1)  # [H, W, 3]
+    d_cam = camera_rays(intrinsics, *pixel_grid(width, height))  # [H, W, 3]
+    if distortion is not None:
+        x, y = undistort_normalized(d_cam[..., 0], d_cam[..., 1], distortion)
+        d_cam = np.stack([x, y, np.ones_like(x)], -1)
     pose = np.asarray(world_from_camera, dtype=np.float64)
     if pose.ndim == 2:
         dirs = d_cam.reshape(-1, 3) @ pose[:3, :3].T

@@ -13,6 +13,8 @@ from __future__ import annotations
 import cv2
 import numpy as np
 
+from artitwin_core.geometry import pixel_rays as camera_rays
+
 
 def pixel_rays(pixels: np.ndarray, rgb_intrinsics: np.ndarray, distortion: np.ndarray | None) -> np.ndarray:
     """Normalised camera rays ``[N, 2]`` ``(x / z, y / z)`` of RGB pixels ``[N, 2]`` ``(u, v)``.
@@ -25,7 +27,7 @@ def pixel_rays(pixels: np.ndarray, rgb_intrinsics: np.ndarray, distortion: np.nd
     fx, fy, cx, cy = (float(v) for v in rgb_intrinsics)
     pix = np.asarray(pixels, dtype=np.float64).reshape(-1, 2)
     if distortion is None or pix.shape[0] == 0:
-        return np.stack([(pix[:, 0] - cx) / fx, (pix[:, 1] - cy) / fy], -1)
+        return camera_rays(rgb_intrinsics, pix[:, 0], pix[:, 1])[:, :2]
     k = np.array([[fx, 0.0, cx], [0.0, fy, cy], [0.0, 0.0, 1.0]])
     crit = (cv2.TERM_CRITERIA_COUNT | cv2.TERM_CRITERIA_EPS, 40, 1e-10)
     und = cv2.undistortPointsIter(pix[:, None, :], k, np.asarray(distortion, np.float64), None, None, crit)

@@ -39,6 +39,7 @@ import numpy as np
 from scipy.spatial import cKDTree
 from scipy.spatial.transform import Rotation
 
+from artitwin_core.geometry import backproject
 from artitwin_core.tracking._lift import lift_pixels
 
 
@@ -170,7 +171,7 @@ def _evaluate(frame: _Frame, level: int, motion, xq, nq, tq, gain, need_jac: boo
     dz = _bilinear(frame.depth, ud, vd)
     ok_d = visible & np.isfinite(dz) & (dz > 0)
     dzs = np.where(ok_d, dz, 1.0)
-    qc = np.stack([(ud - cxd) / fxd * dzs, (vd - cyd) / fyd * dzs, dzs], -1)
+    qc = backproject(dzs, frame.k_depth, ud, vd)
     rd = np.where(ok_d, np.sum(nc * (pc - qc), axis=1), 0.0)
     img, gx_img, gy_img = frame.levels[level]
     val = _bilinear(img, u, v)

@@ -7,6 +7,8 @@ parameters into renderer inputs, ``part_poses`` gives ``world_from_part`` per jo
 residual heat map from the diagnostics' predicted depth. The browser app lives in ``artitwin``.
 """
 
+# The viewer's quaternion helpers are geometry's (re-exported: the CLI and tests import them here).
+from artitwin_core.geometry import matrix_to_quat_wxyz, quat_wxyz_to_matrix
 from artitwin_core.viewer._files import (
     list_export_files,
     model_files,
@@ -16,15 +18,7 @@ from artitwin_core.viewer._files import (
     read_twin_files,
 )
 from artitwin_core.viewer._residual import depth_residual_points, residual_by_label, residual_on_gaussians
-from artitwin_core.viewer._splats import (
-    heat_colors,
-    matrix_to_quat_wxyz,
-    part_poses,
-    pose_splats,
-    quat_wxyz_to_matrix,
-    slider_range,
-    splat_arrays,
-)
+from artitwin_core.viewer._splats import heat_colors, part_poses, pose_splats, slider_range, splat_arrays
 from artitwin_core.viewer._synthetic import synthetic_twin
 from artitwin_core.viewer._twin import CameraRig, MeshPiece, TwinData
 

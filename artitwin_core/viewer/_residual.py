@@ -5,6 +5,7 @@ from __future__ import annotations
 import numpy as np
 
 from artitwin_core._errors import InputError
+from artitwin_core.geometry import backproject
 
 
 def depth_residual_points(
@@ -22,7 +23,7 @@ def depth_residual_points(
     Args:
         depth: ``[T, h, w]`` measured z-depth, metres; 0 or non-finite where none.
         predicted: ``[T, h, w]`` the twin's depth at the same pixels, metres; 0 or NaN where none.
-        intrinsics: ``[T, 4]`` ``(fx, fy, cx, cy)`` of the depth images, pixels (pixel centres at +0.5).
+        intrinsics: ``[T, 4]`` ``(fx, fy, cx, cy)`` of the depth images, pixels (pixel centres at integers).
         world_from_camera: ``[T, 4, 4]`` camera poses (OpenCV axes), metres.
         stride: every ``stride``-th pixel in both directions.
         max_points: random subsample to at most this many points (fixed ``seed``).
@@ -44,8 +45,7 @@ def depth_residual_points(
         z = depth[i, v, u].astype(np.float64)
         zp = predicted[i, v, u].astype(np.float64)
         ok = np.isfinite(z) & (z > 0) & np.isfinite(zp) & (zp > 0)
-        fx, fy, cx, cy = np.asarray(intrinsics[i], np.float64)
-        cam = np.stack([(u[ok] + 0.5 - cx) / fx * z[ok], (v[ok] + 0.5 - cy) / fy * z[ok], z[ok]], 1)
+        cam = backproject(z[ok], intrinsics[i], u[ok], v[ok])
         pose = np.asarray(world_from_camera[i], np.float64)
         points.append(cam @ pose[:3, :3].T + pose[:3, 3])
         values.append(np.abs(z[ok] - zp[ok]))

@@ -11,45 +11,10 @@ from __future__ import annotations
 import numpy as np
 
 from artitwin_core.gaussians import LABEL_PART, GaussianParams
+from artitwin_core.geometry import quat_wxyz_to_matrix
 from artitwin_core.joints import Joint, joint_transforms
 
 SH_C0 = 0.28209479177387814  # degree-0 spherical-harmonic basis; colour = 0.5 + SH_C0 * sh_dc
-
-
-def quat_wxyz_to_matrix(quats_wxyz: np.ndarray) -> np.ndarray:
-    """``[N, 3, 3]`` rotations from ``[N, 4]`` scalar-first quaternions (normalised here; zero -> identity)."""
-    q = np.asarray(quats_wxyz, np.float64)
-    norm = np.linalg.norm(q, axis=-1, keepdims=True)
-    q = np.where(norm > 0, q / np.where(norm > 0, norm, 1.0), np.array([1.0, 0, 0, 0]))
-    w, x, y, z = q[..., 0], q[..., 1], q[..., 2], q[..., 3]
-    return np.stack(
-        [
-            np.stack([1 - 2 * (y * y + z * z), 2 * (x * y - w * z), 2 * (x * z + w * y)], -1),
-            np.stack([2 * (x * y + w * z), 1 - 2 * (x * x + z * z), 2 * (y * z - w * x)], -1),
-            np.stack([2 * (x * z - w * y), 2 * (y * z + w * x), 1 - 2 * (x * x + y * y)], -1),
-        ],
-        -2,
-    )
-
-
-def matrix_to_quat_wxyz(rot: np.ndarray) -> np.ndarray:
-    """``[4]`` scalar-first unit quaternion of one rotation matrix ``[3, 3]`` (Shepperd's method)."""
-    m = np.asarray(rot, np.float64)
-    tr = np.trace(m)
-    if tr > 0:
-        s = 2.0 * np.sqrt(tr + 1.0)
-        q = [0.25 * s, (m[2, 1] - m[1, 2]) / s, (m[0, 2] - m[2, 0]) / s, (m[1, 0] - m[0, 1]) / s]
-    elif m[0, 0] > m[1, 1] and m[0, 0] > m[2, 2]:
-        s = 2.0 * np.sqrt(1.0 + m[0, 0] - m[1, 1] - m[2, 2])
-        q = [(m[2, 1] - m[1, 2]) / s, 0.25 * s, (m[0, 1] + m[1, 0]) / s, (m[0, 2] + m[2, 0]) / s]
-    elif m[1, 1] > m[2, 2]:
-        s = 2.0 * np.sqrt(1.0 + m[1, 1] - m[0, 0] - m[2, 2])
-        q = [(m[0, 2] - m[2, 0]) / s, (m[0, 1] + m[1, 0]) / s, 0.25 * s, (m[1, 2] + m[2, 1]) / s]
-    else:
-        s = 2.0 * np.sqrt(1.0 + m[2, 2] - m[0, 0] - m[1, 1])
-        q = [(m[1, 0] - m[0, 1]) / s, (m[0, 2] + m[2, 0]) / s, (m[1, 2] + m[2, 1]) / s, 0.25 * s]
-    q = np.asarray(q)
-    return q / np.linalg.norm(q) * (1.0 if q[0] >= 0 else -1.0)
 
 
 def splat_arrays(params: GaussianParams) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:

@@ -10,6 +10,7 @@ from __future__ import annotations
 import numpy as np
 
 from artitwin_core.gaussians import LABEL_BACKGROUND, LABEL_PART, GaussianParams
+from artitwin_core.geometry import backproject
 from artitwin_core.viewer._splats import SH_C0
 from artitwin_core.viewer._twin import CameraRig, TwinData
 
@@ -46,7 +47,7 @@ def synthetic_twin(
         rgb, depth, mask = render_state(scene, poses_all[i], (fx, fy, cx, cy), width, height, q=[0.0] * len(truth.joints))
         v, u = np.nonzero(np.isfinite(depth) & (depth > 0))
         z = depth[v, u].astype(np.float64)
-        cam = np.stack([(u + 0.5 - cx) / fx * z, (v + 0.5 - cy) / fy * z, z], 1)
+        cam = backproject(z, (fx, fy, cx, cy), u, v)
         pts.append(cam @ poses_all[i][:3, :3].T + poses_all[i][:3, 3])
         cols.append(rgb[v, u] / 255.0)
         m = mask[v, u].astype(np.int32)

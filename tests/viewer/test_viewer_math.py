@@ -133,7 +133,8 @@ def test_depth_residual_points_lie_on_the_measured_surface():
     assert pts.shape == (24 * 16, 3)
     in_cam = (pts.astype(np.float64) - pose[:3, 3]) @ pose[:3, :3]
     np.testing.assert_allclose(in_cam[:, 2], 2.0, atol=1e-6)  # float32 points near 2 m
-    assert np.all(in_cam[:, 0] > 0)  # only the right half (u >= 32) had a prediction
+    # Only the right half (u >= 32; column 32 is the principal point, x = 0) had a prediction.
+    assert np.all(in_cam[:, 0] > -1e-6) and np.isclose(in_cam[:, 0].min(), 0.0, atol=1e-6)
     np.testing.assert_allclose(vals, 0.05, atol=1e-6)
     with pytest.raises(InputError, match="predicted depth"):
         depth_residual_points(depth, pred[:, :10], np.zeros((1, 4)), pose[None])
