@@ -17,7 +17,7 @@ from artitwin_core.change._canonical import CanonicalMesh
 from artitwin_core.change._config import PartConfig
 from artitwin_core.change._detect import depth_tolerance
 from artitwin_core.change._score import _frame_cloud, _observed_cloud
-from artitwin_core.change._views import FrameView, PartModel
+from artitwin_core.change._views import FrameView, PartModel, _depth_pixels
 
 
 def _grow_part(
@@ -264,8 +264,6 @@ def _open_reach(model: PartModel, view: FrameView, front: np.ndarray, cfg: PartC
     lo, hi = np.percentile(f2, 1, axis=0), np.percentile(f2, 99, axis=0)
     level = float(np.median(front @ n))
     m = model.motion(model.reference_q)
-    fx, fy, cx, cy = view.depth_intrinsics
-    h, w = view.observed_depth.shape
     corner = 2.0 * cfg.sample_m  # rays near a corner pass beside the other edge too
     steps = int(round(_RECT_EXTEND_M / cfg.sample_m))
     look = steps + 3  # strips looked at: a few past the farthest reach
@@ -282,12 +280,7 @@ def _open_reach(model: PartModel, view: FrameView, front: np.ndarray, cfg: PartC
             coords = (a, b) if axis == 0 else (b, a)
             closed = level * n + coords[0][..., None] * e1 + coords[1][..., None] * e2
             cam = (closed @ m[:3, :3].T + m[:3, 3] - view.world_from_camera[:3, 3]) @ view.world_from_camera[:3, :3]
-            z = cam[..., 2]
-            ok = z > 0.05
-            zs = np.where(ok, z, 1.0)
-            u = np.rint(cam[..., 0] / zs * fx + cx).astype(np.int64)
-            v = np.rint(cam[..., 1] / zs * fy + cy).astype(np.int64)
-            ok &= (u >= 0) & (u < w) & (v >= 0) & (v < h)
+            u, v, z, ok = _depth_pixels(view, cam)
             obs = np.full(z.shape, np.nan)
             obs[ok] = view.observed_depth[v[ok], u[ok]]
             measured = np.isfinite(obs)

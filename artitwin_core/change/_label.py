@@ -19,6 +19,7 @@ from artitwin_core.change._canonical import CanonicalMesh
 from artitwin_core.change._config import PartConfig
 from artitwin_core.change._detect import depth_tolerance, remove_small
 from artitwin_core.change._views import PartModel
+from artitwin_core.geometry import pixel_rays
 
 
 def sample_normals(points: np.ndarray, radius_m: float = 0.03) -> np.ndarray:
@@ -73,7 +74,7 @@ def _splat(
             for dx in range(-r, r + 1):
                 uu, vv = ui + dx, vi + dy
                 ok = (uu >= 0) & (uu < width) & (vv >= 0) & (vv < height)
-                ray = np.stack([(uu - cx) / fx, (vv - cy) / fy, np.ones(len(uu))], 1)
+                ray = pixel_rays((fx, fy, cx, cy), uu, vv)
                 denom = np.sum(ni * ray, 1)
                 safe = hi & (np.abs(denom) > 1e-6)
                 zp = np.where(safe, np.sum(ni * pi, 1) / np.where(safe, denom, 1.0), zi)

@@ -21,7 +21,7 @@ from artitwin_core.change._config import PartConfig
 from artitwin_core.change._detect import depth_tolerance
 from artitwin_core.change._grow import _front_seen_open, _grow_part, _open_reach, _plane_axes
 from artitwin_core.change._score import _best_state, _observed_cloud, _scoring_subset, motion_score
-from artitwin_core.change._views import FrameView, PartModel, _to_world
+from artitwin_core.change._views import FrameView, PartModel, _depth_pixels, _to_world
 from artitwin_core.geometry import axis_angle_to_matrix, make_se3
 
 
@@ -209,14 +209,7 @@ def _drop_see_through(model: PartModel, view: FrameView, cfg: PartConfig) -> Par
     m = model.motion(model.reference_q)
     moved = model.closed_points @ m[:3, :3].T + m[:3, 3]
     cam = (moved - view.world_from_camera[:3, 3]) @ view.world_from_camera[:3, :3]
-    fx, fy, cx, cy = view.depth_intrinsics
-    z = cam[:, 2]
-    ok = z > 0.05
-    zs = np.where(ok, z, 1.0)
-    u = np.rint(cam[:, 0] / zs * fx + cx).astype(np.int64)
-    v = np.rint(cam[:, 1] / zs * fy + cy).astype(np.int64)
-    h, w = view.observed_depth.shape
-    ok &= (u >= 0) & (u < w) & (v >= 0) & (v < h)
+    u, v, z, ok = _depth_pixels(view, cam)
     obs = np.full(len(z), np.nan)
     obs[ok] = view.observed_depth[v[ok], u[ok]]
     through = np.isfinite(obs) & (obs > z + depth_tolerance(z, cfg.change) + cfg.see_through_m)
@@ -311,14 +304,7 @@ def _depth_cost(view: FrameView, moved: np.ndarray, cap_m: float = 0.03) -> floa
     """Mean truncated distance along the rays between moved part samples ``[N, 3]`` and the
     observed depth (see-through and far misses cost ``cap_m``); NaN when none is in view."""
     cam = (moved - view.world_from_camera[:3, 3]) @ view.world_from_camera[:3, :3]
-    fx, fy, cx, cy = view.depth_intrinsics
-    z = cam[:, 2]
-    ok = z > 0.05
-    zs = np.where(ok, z, 1.0)
-    u = np.rint(cam[:, 0] / zs * fx + cx).astype(np.int64)
-    v = np.rint(cam[:, 1] / zs * fy + cy).astype(np.int64)
-    h, w = view.observed_depth.shape
-    ok &= (u >= 0) & (u < w) & (v >= 0) & (v < h)
+    u, v, z, ok = _depth_pixels(view, cam)
     if not ok.any():
         return float("nan")
     obs = view.observed_depth[v[ok], u[ok]]

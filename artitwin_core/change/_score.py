@@ -10,7 +10,7 @@ from scipy.spatial import cKDTree
 
 from artitwin_core.change._config import PartConfig
 from artitwin_core.change._detect import depth_tolerance
-from artitwin_core.change._views import FrameView, PartModel, _to_world
+from artitwin_core.change._views import FrameView, PartModel, _depth_pixels, _to_world
 
 
 def _frame_cloud(view: FrameView, config: PartConfig):
@@ -42,18 +42,11 @@ def motion_score(
         score (supporting minus weighted see-through samples), supporting count, see-through count.
     """
     cam = (moved - view.world_from_camera[:3, 3]) @ view.world_from_camera[:3, :3]
-    fx, fy, cx, cy = view.depth_intrinsics
-    z = cam[:, 2]
-    ok = z > 0.05
-    zs = np.where(ok, z, 1.0)
-    u = np.rint(cam[:, 0] / zs * fx + cx).astype(np.int64)
-    v = np.rint(cam[:, 1] / zs * fy + cy).astype(np.int64)
-    h, w = view.observed_depth.shape
-    ok &= (u >= 0) & (u < w) & (v >= 0) & (v < h)
+    u, v, z, ok = _depth_pixels(view, cam)
     idx = np.nonzero(ok)[0]
     if len(idx) == 0:
         return 0.0, 0, 0
-    pix = v[idx] * w + u[idx]
+    pix = v[idx] * view.observed_depth.shape[1] + u[idx]
     # One vote per pixel: the nearest sample (the part hides its own back).
     order = np.lexsort((z[idx], pix))
     first = np.ones(len(order), bool)

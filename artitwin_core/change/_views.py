@@ -11,7 +11,7 @@ import numpy as np
 
 from artitwin_core.capture import Capture
 from artitwin_core.change._canonical import CanonicalMesh
-from artitwin_core.geometry import axis_angle_to_matrix, make_se3
+from artitwin_core.geometry import axis_angle_to_matrix, make_se3, nearest_pixel, project
 from artitwin_core.joints import JointType
 from artitwin_core.registration import backproject
 
@@ -84,3 +84,14 @@ def _to_world(view: FrameView, depth: np.ndarray, mask: np.ndarray) -> np.ndarra
     d = np.where(mask, depth, np.nan)
     pts, _ = backproject(d, view.depth_intrinsics)
     return pts @ view.world_from_camera[:3, :3].T + view.world_from_camera[:3, 3]
+
+
+def _depth_pixels(view: FrameView, cam: np.ndarray, min_z: float = 0.05) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """The depth pixel of each camera point ``cam [..., 3]`` (metres): column ``u``, row ``v``
+    (int64, nearest pixel centre), its z (metres) and ``ok``: in front of the camera by more than
+    ``min_z`` and inside the depth image."""
+    uv, z = project(cam, view.depth_intrinsics, min_z=min_z)
+    u, v = nearest_pixel(uv)
+    h, w = view.observed_depth.shape
+    ok = (z > min_z) & (u >= 0) & (u < w) & (v >= 0) & (v < h)
+    return u, v, z, ok
