@@ -40,6 +40,7 @@ from artitwin_core.gaussians import (
     rasterize,
 )
 from artitwin_core.gaussians._sh import SH_C0
+from artitwin_core.geometry import pixel_rays
 from artitwin_core.joints import Joint
 from artitwin_core.reconstruction import TrainViews
 from artitwin_core.reconstruction._losses import depth_l1, photometric_loss, psnr
@@ -318,9 +319,10 @@ def seed_unexplained(
         bad = ok & ((alpha < 0.5) | (rdepth > d + config.seed_depth_tol_m))
         if not bad.any():
             continue
-        fx, fy, cx, cy = av.views.intrinsics[v]
         z = d[bad].astype(np.float64)
-        cam = np.stack([(uu[bad] + 0.5 - cx) / fx * z, (vv[bad] + 0.5 - cy) / fy * z, z, np.ones_like(z)], 1)
+        # Pixel centres at +0.5, as the rasterizer draws with the data's K (geometry._camera).
+        ray = pixel_rays(av.views.intrinsics[v], uu[bad] + 0.5, vv[bad] + 0.5)
+        cam = np.concatenate([ray * z[:, None], np.ones_like(z)[:, None]], 1)
         world_from_cam = np.linalg.inv(av.views.cam_from_world[v].cpu().numpy().astype(np.float64))
         x = cam @ world_from_cam.T
         lab = np.full(len(z), other_label, np.int32)

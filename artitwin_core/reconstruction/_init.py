@@ -18,6 +18,7 @@ from artitwin_core._errors import InputError
 from artitwin_core.capture import Capture
 from artitwin_core.gaussians import LABEL_BACKGROUND, GaussianParams
 from artitwin_core.gaussians._sh import SH_C0
+from artitwin_core.geometry import pixel_rays
 from artitwin_core.reconstruction._config import InitConfig
 
 
@@ -55,10 +56,7 @@ def backproject_depth(
             ok &= weight > 0  # confidence 0 carries no information
         if not ok.any():
             continue
-        fx, fy, cx, cy = capture.depth_intrinsics[t]
-        x = (uc[ok] - cx) / fx * z[ok]
-        y = (vc[ok] - cy) / fy * z[ok]
-        cam = np.stack([x, y, z[ok]], axis=1)
+        cam = pixel_rays(capture.depth_intrinsics[t], uc[ok], vc[ok]) * z[ok, None]
         # Colour: project the camera-space point into the RGB image of the same frame.
         rfx, rfy, rcx, rcy = capture.rgb_intrinsics[t]
         ur = rfx * cam[:, 0] / cam[:, 2] + rcx - 0.5

@@ -39,6 +39,7 @@ import torch
 import torch.nn.functional as F
 
 from artitwin_core.gaussians import adam_step
+from artitwin_core.geometry import pixel_grid, pixel_rays
 
 _UNDISTORT_ITERATIONS = 10
 
@@ -105,9 +106,9 @@ def _undistort(xd, yd, k, iterations: int = _UNDISTORT_ITERATIONS):
 
 
 def _normalised_grid(intrinsics, width: int, height: int) -> tuple[np.ndarray, np.ndarray]:
-    fx, fy, cx, cy = (float(c) for c in intrinsics[:4])
-    u, v = np.meshgrid(np.arange(width, dtype=np.float64), np.arange(height, dtype=np.float64))
-    return (u - cx) / fx, (v - cy) / fy
+    u, v = pixel_grid(width, height)
+    ray = pixel_rays([float(c) for c in intrinsics[:4]], u, v)
+    return ray[..., 0], ray[..., 1]
 
 
 def distortion_sample_points(intrinsics, width: int, height: int, k) -> tuple[np.ndarray, np.ndarray]:
