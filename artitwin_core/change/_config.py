@@ -64,25 +64,20 @@ class PartConfig:
         max_part_radius_m: grown points stay within this distance of the part's centre.
         grow_frames: after tracking, a drawer also grows from this many other frames where it
             is open, at their tracked states (0: only from the reference frame). Once growth
-            stayed inside the front's outline (``drawer_footprint_m``), 6 frames lifted the
-            benchmark drawers' median IoU (door+drawer 0.873 -> 0.892, non-ideal-joints 0.846 ->
-            0.859, drawer 0.912 -> 0.944); before, non-ideal-joints' drawer, which tilts as it
-            slides, lost 0.31 (its growth ran into the door above it).
+            stayed inside the front's outline (``drawer_footprint_m``), 6 frames raised every
+            measured drawer's IoU (docs/accuracy.md, "Why the defaults are what they are").
         outline_margin_m: a drawer's growth takes, without a surface path to the front, changed
             points that moved back lie this far inside the front's outline (metres).
         see_through_m: closed samples that, at the reference state, lie this far (plus the
             depth tolerance) in front of the observation are dropped (another part's surface).
         front_fill_reach_m: a drawer's front is filled from the canonical mesh up to this far
             outside the outline of its vanished samples (metres): the rim its box's sides hid as
-            it slid out never vanished. On the door+drawer benchmark's drawer, median IoU 0.775
-            without it, 0.816 with 0.02 (0.799 with 0.03; the door's fill, whose rim vanishes
-            with it, does not reach: 0.02 there cost the door 0.01).
+            it slid out never vanished. 0.02 was best for a drawer; a door's fill, whose rim
+            vanishes with it, does not reach (docs/accuracy.md).
         front_seen_min_q_m: a drawer fitted at least this far open (metres) takes its front's
             outline from the reference frame, where the whole front stands clear of the carcass
             (:func:`_front_seen_open`), and fills the upright rectangle it spans; the fill then
-            does not reach past it. On the benchmark, drawer median IoU door+drawer 0.813 ->
-            0.873, non-ideal-joints 0.792 -> 0.846, drawer 0.893 -> 0.912 (with the axis along
-            the front normal, 6 growth frames off).
+            does not reach past it. It raised every measured drawer's IoU (docs/accuracy.md).
         front_plane_tol_m: the observed front, moved back, lies this close to the front's plane.
         door_slab_m: what grows onto a door lies at most this far behind its front (metres).
         drawer_footprint_m: what grows onto a drawer lies inside its front's outline seen along

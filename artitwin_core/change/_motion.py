@@ -40,7 +40,7 @@ def _front_normal(
         normals = res["primitive_normals"].numpy().astype(np.float64)
         normals *= np.sign(normals @ (towards - centroid))[:, None] + (normals @ (towards - centroid) == 0)[:, None]
         # The median, not the mean: samples on the rim and the handle see side faces, and their
-        # normals tilted the mean of the drawer benchmark's front by 10 degrees (median: 1.5).
+        # normals tilt the mean of a drawer's front by degrees where the median barely moves.
         mean = np.median(normals, axis=0)
         if np.linalg.norm(mean) > 0.5:
             n = mean / np.linalg.norm(mean)
@@ -151,7 +151,7 @@ def _fit_setup(
     frames = [len(views) - 1] + [int(t) for t in np.argsort(-counts)[:2] if counts[t] > 0]
     # Where the part is most open it may be seen worst: a door swung past the camera's line of
     # sight shows only its edge in the last frames, where no hinge explains anything and a
-    # flap at 107 deg "won" with 17 supporting samples (strong-hand-occlusion at seed 105). On
+    # flap far past the truth can "win" with a handful of supporting samples. On
     # its way there it is seen well: the first frames where the vanished surface reaches a
     # quarter, a half and three quarters of its largest extent are candidates too.
     if counts.max() > 0:
@@ -203,8 +203,8 @@ def _drop_see_through(model: PartModel, view: FrameView, cfg: PartConfig) -> Par
     in front of what is observed there (we see through them): surface of a neighbouring part
     that the vanished-surface clustering gave to this one. The door above a drawer and its
     coplanar front leave one vanished surface; the door's bottom strip went to the drawer,
-    whose label then covered the door while it swung past (90-220 pixels a frame on the
-    door+drawer benchmark) and its tracks followed the door. Moved with the drawer, that strip
+    whose label then covered the door while it swung past, and its tracks followed the door.
+    Moved with the drawer, that strip
     floats 25 cm out in front of the carcass, where the camera sees the floor."""
     m = model.motion(model.reference_q)
     moved = model.closed_points @ m[:3, :3].T + m[:3, 3]
@@ -255,8 +255,8 @@ def _fit_at(
         jt, axis, pivot, q = _joint_from_motion(init, closed_points.mean(0))
         if jt == "prismatic":
             # A drawer slides along its front's normal. ICP slides a flat front freely in its own
-            # plane (only its rim and handle hold it there): it took door+drawer's drawer 6.5 deg
-            # off the normal, and the front seen at this frame 2.8 cm sideways once moved back.
+            # plane (only its rim and handle hold it there), degrees off the normal and
+            # centimetres sideways.
             axis, q = normal, float(init[:3, 3] @ normal)
         candidates.append(PartModel(closed_points, jt, axis, pivot, r, q, onset_frame, normal))
         for cand in candidates:
@@ -397,17 +397,16 @@ def _slide_from_outline(
     ``grown``); ``model`` itself when the drift cannot be measured.
 
     The slide along the normal alone assumes the front keeps its place in its plane as it
-    slides. A drawer that dips as it slides (non-ideal-joints: 0.04 rad at full travel, its
-    front 1.4 cm lower at the reference frame) does not: its outline seen slid out and moved
-    back along the normal landed 1.85 cm low (1.4 cm of dip, 0.4 cm from the fitted normal's
-    1 degree of upward tilt), and the front's top face seen from above, which the closed frames
+    slides. A drawer that dips as it slides does not: its outline seen slid out and moved
+    back along the normal lands low (the dip plus the fitted normal's tilt; docs/accuracy.md),
+    and the front's top face seen from above, which the closed frames
     show once the door above is open, went with it, inside the front. The 6-DOF motion ICP
-    finds at the reference frame does not tell (a flat front slides in its own plane: 2-16
-    degrees and 1-2 cm off on the benchmark drawers). The outline's edges that the frames see
+    finds at the reference frame does not tell (a flat front slides in its own plane: degrees
+    and centimetres off). The outline's edges that the frames see
     clear (the plane is seen through just past them, :func:`_open_reach`) do: each moves linearly with the state, its slope is the
     drift (a shared slope per in-plane axis, an offset per edge, least squares; at least three
-    edge positions over ``front_seen_min_q_m / 2`` of travel). On the ideal benchmark drawers it
-    comes out under 2 cm per metre."""
+    edge positions over ``front_seen_min_q_m / 2`` of travel). On an ideal drawer it comes out
+    near zero."""
     if abs(model.reference_q) < cfg.front_seen_min_q_m:
         return model
     r = model.reference_frame

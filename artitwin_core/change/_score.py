@@ -93,8 +93,8 @@ def _best_state(
     ``after_reference``: ``view`` comes after the model's reference frame, which was not the
     last, so the part may open further than there."""
     span = cfg.search_window * abs(model.reference_q)
-    # A drawer's reference frame need not be where it is most open (non-ideal-joints' drawer was
-    # fitted at 0.207 m and opens to 0.25 m); a door's usually is, and searching past it invites
+    # A drawer's reference frame need not be where it is most open (a tilting drawer is fitted
+    # short of its full travel); a door's usually is, and searching past it invites
     # grazing-angle states. After a reference frame that is not the last (the door seen best on
     # its way past the camera's line of sight) the state goes on to the hypotheses' limit.
     reach = cfg.max_rotation_rad if model.joint_type == "revolute" else cfg.max_translation_m

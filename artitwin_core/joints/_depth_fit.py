@@ -1,8 +1,8 @@
 """Fitting a hinged slab's line (axis and pivot) to the planes its faces show in depth.
 
 Point tracks on a weakly textured door slide along its surface, and the joint fitted to them
-inherits their bias: on the white door of the benchmark the pivot line sat 1 cm off, along the
-door's normal, where a door's tracks say least. A door is a slab, and depth measures its faces
+inherits their bias: on a white door the pivot line sat centimetres off, along the door's
+normal, where a door's tracks say least. A door is a slab, and depth measures its faces
 well: each frame's visible face is a plane fitted to a thousand points, which averages the
 depth noise down to a fraction of a millimetre without matching any point to any other.
 

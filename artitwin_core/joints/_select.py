@@ -100,9 +100,9 @@ def _pitch_significance(
 
     The axis and ``q_t`` are the null model's (a score test): the screw's own fit is free to tilt
     its axis so that the tilt's leak of the swing into the axial direction (``|chord| sin(tilt)``,
-    growing with ``q``) reads as a pitch. On low-texture-door, whose per-frame rotations carry
-    10-30 mrad of tracker error, the screw tilted its axis 4.4 deg and read 31 mm of travel at
-    t = 11; along the revolute's axis (1.5 deg off) the same frames give t = 2.7. A real pitch
+    growing with ``q``) reads as a pitch: on a weakly textured door, whose per-frame rotations
+    carry tens of mrad of tracker error, the screw's own fit read a confident pitch where the
+    revolute's axis saw none (docs/accuracy.md). A real pitch
     moves every point of the part along the axis by the same amount, which no tilt of a hinge
     reproduces, so it shows along the revolute's axis too (``test_screw_*``). Fewer than 4
     frames, or fewer than 3 distinct states, give 0 (not identifiable).

@@ -22,10 +22,10 @@ def _slide_along_face(
 
     A drawer slides along its front's normal. The tracks measure the slide's direction from the
     part's displacement across ``a`` per unit of travel, and a tracker's error is common to a
-    frame's points (the benchmark drawers' tracks shift a frame by 2-7 mm across the slide
-    while moving): over 0.25 m of travel that is 0.4-1 deg, frames, not points, being the
+    frame's points (a drawer's tracks shift a frame by millimetres across the slide while
+    moving): over 0.25 m of travel that is up to a degree, frames, not points, being the
     independent samples. The front's normal is a plane fit over hundreds of points, each with
-    its own noise (0.02-0.09 deg from the truth on the benchmark drawers). Per axis ``e``
+    its own noise (a tenth of a degree or less from the truth). Per axis ``e``
     across ``a``: the tracks' slope is the regression of the frames' displacements (``rigid
     [T, 4, 4]`` applied to the points' centroid) along ``e`` on ``q``, with its standard error
     from the frames' scatter; the face's slope is ``(n.e) / (n.a)``, with the plane fit's
@@ -36,11 +36,11 @@ def _slide_along_face(
     ``face_min_fraction`` of ``points [N, 3]`` (the closed part's inliers) on one plane whose
     normal is within ``face_max_angle_rad`` of ``a``.
 
-    A drawer that also turns as it slides (non-ideal-joints: its front dips 2.3 deg over the
-    travel) is tested first (``_tilt_rate``). Its tracks' direction is their centroid's, 2.7 deg
-    off the rail there, and the rail's direction is that of the turn's pivot, which no track
-    sees; the prismatic model's latent ``points`` are smeared by the turn (their face came out
-    0.6 deg off). So a tilting slide takes its face from ``points_ref [M, 3]``, the reference
+    A drawer that also turns as it slides (its front dips over the travel) is tested first
+    (``_tilt_rate``). Its tracks' direction is their centroid's, degrees off the rail, and the
+    rail's direction is that of the turn's pivot, which no track sees; the prismatic model's
+    latent ``points`` are smeared by the turn. So a tilting slide takes its face from
+    ``points_ref [M, 3]``, the reference
     frame's own observations, and slides along that normal if the turn explains the tracks'
     disagreement with it (``_tilt_explains``); else it keeps the tracks' direction.
 

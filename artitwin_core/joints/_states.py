@@ -19,7 +19,7 @@ after that (the door's edge, then its inside face), so each frame's ``q`` is fit
    truncated quadratic loss counts points farther than ``gate_m`` from the model, or whose own
    normal turns more than ``normal_gate_deg`` from their match's (the door's edge face against
    the front face's border), as outliers.
-4. Optionally (``grow``, off: it spread one frame's error to the next on the benchmark) frames
+4. Optionally (``grow``, off: it spread one frame's error to the next) frames
    fitted confidently add their points to the model.
 
 A frame keeps its tracked ``q`` where that is confident and the depth fit agrees with it; the
