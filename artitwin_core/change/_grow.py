@@ -325,10 +325,10 @@ def _grow_over_frames(
     at its tracked state ``states [T]``: one frame shows only some of the drawer's inside and
     the frames the camera passes by show the rest. (Growing a door so, from its less certain
     states, lowered its IoU.) Frames where the part is less
-    than a third as open as at the reference frame, or tracked with a score below 0.5, are
+    than a third as open as at the reference frame, or tracked with a score below ``min_state_score``, are
     skipped (there the moved surface is close to the static one, or the state is uncertain)."""
     q_ref = abs(model.reference_q)
-    ok = np.nonzero((np.abs(states) > q_ref / 3) & (scores >= 0.5))[0]
+    ok = np.nonzero((np.abs(states) > q_ref / 3) & (scores >= cfg.min_state_score))[0]
     ok = ok[ok != model.reference_frame]
     if len(ok) == 0 or model.joint_type != "prismatic":
         return model

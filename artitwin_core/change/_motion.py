@@ -60,7 +60,7 @@ def _hypotheses(points: np.ndarray, n: np.ndarray, up: np.ndarray, cfg: PartConf
     """
     c = points.mean(0)
     out = []
-    for q in np.arange(0.02, cfg.max_translation_m + 1e-9, 0.01):
+    for q in np.arange(cfg.slide_grid_start_m, cfg.max_translation_m + 1e-9, cfg.slide_grid_step_m):
         out.append(("prismatic", n, c, float(q)))
     side = np.cross(up, n)
     if np.linalg.norm(side) > 0.3:
@@ -68,7 +68,8 @@ def _hypotheses(points: np.ndarray, n: np.ndarray, up: np.ndarray, cfg: PartConf
         hinge_dirs = [(up, side), (side, up)]  # vertical hinge at a side edge; horizontal at top/bottom
     else:
         hinge_dirs = []
-    angles = np.deg2rad(np.arange(3.0, np.rad2deg(cfg.max_rotation_rad) + 1e-9, 3.0))
+    step = cfg.swing_grid_step_deg
+    angles = np.deg2rad(np.arange(step, np.rad2deg(cfg.max_rotation_rad) + 1e-9, step))
     for axis, across in hinge_dirs:
         s = (points - c) @ across
         for edge in (s.min(), s.max()):
@@ -155,7 +156,7 @@ def _fit_setup(
     # its way there it is seen well: the first frames where the vanished surface reaches a
     # quarter, a half and three quarters of its largest extent are candidates too.
     if counts.max() > 0:
-        frames += [int(np.argmax(counts >= f * counts.max())) for f in (0.25, 0.5, 0.75)]
+        frames += [int(np.argmax(counts >= f * counts.max())) for f in cfg.reference_extent_fractions]
     return up, frames
 
 
@@ -250,7 +251,7 @@ def _fit_at(
         model = _local_refine(coarse, view, sub, cfg)
         init = model.motion(model.reference_q)
         candidates = [model]
-        for dist in (0.08, 0.04):
+        for dist in cfg.icp_distances_m:
             init = _icp_point_to_plane(closed_points, tgt_pts, tgt_nrm, tgt_tree, init, dist)
         jt, axis, pivot, q = _joint_from_motion(init, closed_points.mean(0))
         if jt == "prismatic":
@@ -264,7 +265,7 @@ def _fit_at(
             score = motion_score(view, sub @ m[:3, :3].T + m[:3, 3], sub, cfg)[0]
             if score > best_score:
                 best, best_score = cand, score
-    return _refine_state_by_depth(best, view, sub), best_score
+    return _refine_state_by_depth(best, view, sub, cfg), best_score
 
 
 def _icp_point_to_plane(
@@ -326,8 +327,8 @@ def _depth_cost(view: FrameView, moved: np.ndarray, cap_m: float = 0.03) -> floa
     return float(np.mean(np.where(np.isfinite(res), np.minimum(res, cap_m), cap_m)))
 
 
-def _refine_state_by_depth(model: PartModel, view: FrameView, sub: np.ndarray) -> PartModel:
-    """A prismatic part's reference state fine-tuned (+-3 cm) to fit the observed depth.
+def _refine_state_by_depth(model: PartModel, view: FrameView, sub: np.ndarray, cfg: PartConfig) -> PartModel:
+    """A prismatic part's reference state fine-tuned (+-``depth_refine_span_m``) to fit the observed depth.
 
     The support score counts samples within a few centimetres of an observed point, so it is
     flat over a couple of centimetres of joint state; a drawer fitted 2.5 cm short leaves its
@@ -335,9 +336,9 @@ def _refine_state_by_depth(model: PartModel, view: FrameView, sub: np.ndarray) -
     drops it. The truncated depth residual has its minimum at the true state."""
     if model.joint_type != "prismatic":
         return model  # a door is often seen edge-on, where grazing samples dominate the residual
-    span = 0.03
+    span = cfg.depth_refine_span_m
     best, best_cost = model, np.inf
-    for dq in np.linspace(-span, span, 25):
+    for dq in np.linspace(-span, span, cfg.depth_refine_points):
         cand = replace(model, reference_q=model.reference_q + dq)
         m = cand.motion(cand.reference_q)
         cost = _depth_cost(view, sub @ m[:3, :3].T + m[:3, 3])
@@ -357,7 +358,8 @@ def _local_refine(model: PartModel, view: FrameView, sub: np.ndarray, cfg: PartC
 
     best, best_score = model, score(model)
     if model.joint_type == "prismatic":
-        for dq in np.arange(-0.03, 0.0301, 0.005):
+        span, step = cfg.local_slide_span_m, cfg.local_slide_step_m
+        for dq in np.arange(-span, span + 0.5 * step, step):
             cand = replace(model, reference_q=model.reference_q + dq)
             sc = score(cand)
             if sc > best_score:
@@ -365,10 +367,11 @@ def _local_refine(model: PartModel, view: FrameView, sub: np.ndarray, cfg: PartC
         return best
     across = np.cross(model.axis, model.front_normal)
     across /= max(np.linalg.norm(across), 1e-9)
-    for da in np.arange(-0.06, 0.0601, 0.02):
-        for dn in (-0.03, -0.015, 0.0):
+    span, step = cfg.local_pivot_span_m, cfg.local_pivot_step_m
+    for da in np.arange(-span, span + 0.5 * step, step):
+        for dn in cfg.local_pivot_behind_m:
             pivot = model.pivot + across * da + model.front_normal * dn
-            for dq in np.radians([-6.0, -4.0, -2.0, 0.0, 2.0, 4.0, 6.0]):
+            for dq in np.radians(list(cfg.local_swing_deg)):
                 cand = replace(model, pivot=pivot, reference_q=model.reference_q + dq)
                 sc = score(cand)
                 if sc > best_score:
@@ -419,7 +422,7 @@ def _slide_from_outline(
             if abs(q) < cfg.front_seen_min_q_m:
                 if step < 0:
                     break  # earlier frames are less open still
-            elif score >= 0.5:
+            elif score >= cfg.min_state_score:
                 states[t] = q
             current, t = q, t + step
     n = model.front_normal

@@ -78,6 +78,15 @@ class JointFitConfig:
             at least ``tilt_chi2``, 11.34 its 99% quantile) and by at least ``tilt_min_rad``
             over the travel is a tilting slide: its direction is its closed face's normal if the
             turn explains the tracks' disagreement with it (``_slide_along_face``).
+        tilt_explain_sigmas: the turn explains the tracks' direction when their gap from the
+            face normal, along the turn's axis, is within this many of their standard errors.
+        face_fit_min_points, face_fit_iterations, face_fit_band_m: the face plane's robust fit
+            (least points, RANSAC samples, and the band in metres its score counts points in).
+        min_frame_tracks: a frame with fewer usable tracks takes the global noise scale
+            instead of its own median residual.
+        pitch_min_support, pitch_support_fraction: the screw's pitch test uses the frames whose
+            rigid motion rests on at least this many RANSAC inliers, and on at least this
+            fraction of the median frame's.
         seed: RANSAC random seed.
     """
 
@@ -114,6 +123,13 @@ class JointFitConfig:
     slide_floor_rad: float = float(np.deg2rad(0.7))
     tilt_chi2: float = 11.34
     tilt_min_rad: float = float(np.deg2rad(0.5))
+    tilt_explain_sigmas: float = 3.0
+    face_fit_min_points: int = 20
+    face_fit_iterations: int = 200
+    face_fit_band_m: float = 0.01
+    min_frame_tracks: int = 10
+    pitch_min_support: float = 10.0
+    pitch_support_fraction: float = 0.2
     seed: int = 0
 
     def __post_init__(self) -> None:
@@ -162,6 +178,7 @@ class StateRefineConfig:
         coarse_points: about this many of a frame's points score the first grid.
         search_below_rad, search_above_rad: the grid spans the seeds' range widened by these.
         fine_step_rad: step of the second grid around the coarse minimum.
+        fine_span_steps: the second grid spans this many coarse steps each side of it.
         agree_rad: a confident tracked ``q`` within this of the depth fit is kept as it is.
         q_tolerance_rad: depth-fit standard error at which its confidence is 0.5.
         min_inlier_fraction: depth fits with fewer inliers get no confidence.
@@ -224,6 +241,7 @@ class StateRefineConfig:
     search_below_rad: float = float(np.radians(20.0))
     search_above_rad: float = float(np.radians(100.0))
     fine_step_rad: float = float(np.radians(0.1))
+    fine_span_steps: float = 1.5
     agree_rad: float = float(np.radians(1.5))
     q_tolerance_rad: float = float(np.radians(1.0))
     min_inlier_fraction: float = 0.4

@@ -78,7 +78,7 @@ def _robust_weights(r, valid, track_ok_prev, sigma_glob, cfg: JointFitConfig):
     """Per-frame noise scale, hard gate and Cauchy weights from residuals ``r [T, N]``."""
     t_count = r.shape[0]
     use = valid & track_ok_prev[None, :]
-    enough = use.sum(1) >= 10
+    enough = use.sum(1) >= cfg.min_frame_tracks
     med = np.full(t_count, sigma_glob * CHI3_MEDIAN)
     if enough.any():
         med[enough] = np.nanmedian(np.where(use[enough], r[enough], np.nan), axis=1)

@@ -191,7 +191,7 @@ def _best_moving(
     screw = finals["screw"][1]
     travel = abs(screw.pitch) * float(screw.q_range[1] - screw.q_range[0])
     support = m.ransac_in.sum(1)
-    strong = m.has & (support >= max(10.0, 0.2 * float(np.median(support[m.has]))))
+    strong = m.has & (support >= max(cfg.pitch_min_support, cfg.pitch_support_fraction * float(np.median(support[m.has]))))
     # Tested at the revolute's fit (see _pitch_significance); the screw's own axis when the
     # revolute ran away (no hinge near the part to test against).
     null = finals["revolute"][1] if plausible["revolute"] else screw

@@ -75,8 +75,9 @@ def _slide_along_face(
     # A tilting slide's tracks may stray from the face normal by up to the turn's lever.
     stray = float(np.arctan(np.linalg.norm(tilt) * reach)) if tilt is not None else 0.0
     plane = robust_plane(
-        face_points, a, np.random.default_rng(cfg.seed), min_points=20,
-        normal_tol_deg=float(np.degrees(cfg.face_max_angle_rad + stray)), iterations=200, band_m=0.01,
+        face_points, a, np.random.default_rng(cfg.seed), min_points=cfg.face_fit_min_points,
+        normal_tol_deg=float(np.degrees(cfg.face_max_angle_rad + stray)), iterations=cfg.face_fit_iterations,
+        band_m=cfg.face_fit_band_m,
     )
     if plane is None or plane.fraction < cfg.face_min_fraction:
         return joint
@@ -151,10 +152,10 @@ def _tilt_explains(gap: np.ndarray, rate: np.ndarray, reach: float, se_tracks: f
     A turn about ``w`` moves a point ``x`` by ``w x (x - p)`` per unit of travel on top of the
     slide at its pivot ``p``, so the tracks' centroid ``c`` strays from the rail by ``w x (c -
     p)``: a gap across ``w``, of at most ``|w| reach`` for a pivot within ``reach`` of the
-    centroid. True when the gap's part along ``w`` is within 3 of the tracks' standard errors
+    centroid. True when the gap's part along ``w`` is within ``tilt_explain_sigmas`` of the tracks' standard errors
     ``se_tracks`` (widened by ``slide_floor_rad``) and the rest within ``|w| reach``."""
     turn = float(np.linalg.norm(rate))
     w = rate / turn
     along = abs(float(gap @ w))
     across = float(np.linalg.norm(gap - (gap @ w) * w))
-    return along <= 3.0 * float(np.hypot(se_tracks, cfg.slide_floor_rad)) and across <= turn * reach
+    return along <= cfg.tilt_explain_sigmas * float(np.hypot(se_tracks, cfg.slide_floor_rad)) and across <= turn * reach

@@ -158,7 +158,8 @@ def _fit_frame(
     # The coarse grid only has to land in the right basin: a subsample of the points will do.
     cost, _, _ = cost_at(grid, max(1, pts.shape[0] // cfg.coarse_points))
     q0 = grid[int(np.argmin(cost))]
-    fine = q0 + np.arange(-cfg.coarse_step_rad * 1.5, cfg.coarse_step_rad * 1.5 + 1e-12, cfg.fine_step_rad)
+    half = cfg.coarse_step_rad * cfg.fine_span_steps
+    fine = q0 + np.arange(-half, half + 1e-12, cfg.fine_step_rad)
     cost, n_in, rms = cost_at(fine)
     k = int(np.argmin(cost))
     q_best = fine[k]
