@@ -252,8 +252,7 @@ def fit_line_from_planes(joint: Joint, lifted, cams: np.ndarray, cfg: StateRefin
         plane = _robust_plane(lifted[t][0], n_pred, cfg, rng)
         if plane is None or plane.inliers < cfg.min_points or plane.fraction < cfg.plane_min_fraction:
             continue
-        inside = bool((cams[t] - plane.centroid) @ plane.normal < 0)
-        planes[int(t)] = (plane, inside)
+        planes[int(t)] = (plane, bool((cams[t] - plane.centroid) @ plane.normal < 0))
     frames = np.array(sorted(planes), dtype=np.int64)
     if frames.size < cfg.axis_min_frames or np.ptp(q0[frames]) < cfg.axis_min_span_rad:
         return None

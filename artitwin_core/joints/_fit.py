@@ -20,13 +20,14 @@ from scipy.spatial.transform import Rotation
 from artitwin_core.joints._config import JointFitConfig
 from artitwin_core.joints._model import joint_motion, rotations_about, skew
 from artitwin_core.joints._rigid import CHI3_MEDIAN
+from artitwin_core.joints._types import JointType
 
 
 @dataclass
 class _Fit:
     """Internal state of one hypothesis fit (q free at every frame: gauge fixed afterwards)."""
 
-    kind: str
+    kind: JointType
     axis: np.ndarray
     pivot: np.ndarray
     pitch: float
@@ -46,7 +47,7 @@ def _tangent_basis(a: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     return e1, np.cross(a, e1)
 
 
-def _motions(fit_kind: str, axis, pivot, q, pitch) -> tuple[np.ndarray, np.ndarray]:
+def _motions(fit_kind: JointType, axis, pivot, q, pitch) -> tuple[np.ndarray, np.ndarray]:
     qq = np.nan_to_num(q)
     return joint_motion(fit_kind, axis, pivot, qq, pitch)
 

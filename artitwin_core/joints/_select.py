@@ -21,7 +21,7 @@ from artitwin_core.joints._frame_motions import FrameMotions
 from artitwin_core.joints._model import joint_motion
 from artitwin_core.joints._result import HypothesisScore, JointFit
 from artitwin_core.joints._slide import _slide_along_face
-from artitwin_core.joints._types import Joint
+from artitwin_core.joints._types import Joint, JointType
 
 
 def _n_params(kind: str, n_frames: int) -> int:
@@ -133,8 +133,8 @@ def select_joint(
     valid: np.ndarray,
     ref: int,
     m: FrameMotions,
-    hyps: dict[str, HypothesisScore],
-    finals: dict[str, tuple[_Fit, Joint, np.ndarray]],
+    hyps: dict[JointType, HypothesisScore],
+    finals: dict[JointType, tuple[_Fit, Joint, np.ndarray]],
     cfg: JointFitConfig,
 ) -> JointFit:
     """The joint the hypotheses ``hyps`` (fits ``finals``) select, refined as its type needs: a
@@ -175,18 +175,18 @@ def select_joint(
 
 
 def _best_moving(
-    hyps: dict[str, HypothesisScore],
-    finals: dict[str, tuple[_Fit, Joint, np.ndarray]],
+    hyps: dict[JointType, HypothesisScore],
+    finals: dict[JointType, tuple[_Fit, Joint, np.ndarray]],
     m: FrameMotions,
     cfg: JointFitConfig,
-) -> str:
+) -> JointType:
     """The moving joint type with the best BIC among the plausible ones; the screw only when it
     beats the revolute by ``screw_bic_margin`` with enough travel and a significant pitch."""
     plausible = {
         k: _rotation_plausible(finals[k][1], finals[k][2], finals[k][0].track_ok, cfg)
         for k in ("revolute", "screw")
     }
-    moving = [k for k in ("prismatic", "revolute") if k == "prismatic" or plausible[k]]
+    moving: list[JointType] = [k for k in ("prismatic", "revolute") if k == "prismatic" or plausible[k]]
     best = min(moving, key=lambda k: hyps[k].bic)
     screw = finals["screw"][1]
     travel = abs(screw.pitch) * float(screw.q_range[1] - screw.q_range[0])

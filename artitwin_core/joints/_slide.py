@@ -84,7 +84,7 @@ def _slide_along_face(
     n = plane.normal
     on_face = face_points[np.abs((face_points - plane.centroid) @ n) < 2.5 * plane.sigma] - plane.centroid
     if tilt is not None:
-        gap = sum((slope - float(n @ e) / float(n @ a)) * e for e, slope in zip(_tangent_basis(a), slopes, strict=True))
+        gap = np.asarray(sum((slope - float(n @ e) / float(n @ a)) * e for e, slope in zip(_tangent_basis(a), slopes, strict=True)))
         if not _tilt_explains(gap, tilt, reach, float(np.sqrt(max(var_tracks))), cfg):
             return joint
         fused = [float(n @ e) / float(n @ a) for e in _tangent_basis(a)]
