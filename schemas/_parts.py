@@ -103,6 +103,35 @@ class PartStageConfig(StageConfig):
     see_through_m: float = Field(
         default=0.05, ge=0, description="Closed samples this far in front of the observation at the reference state are dropped, metres."
     )
+    slide_grid_start_m: float = Field(default=0.02, gt=0, description="The drawer hypotheses slide from this far out, metres.")
+    slide_grid_step_m: float = Field(default=0.01, gt=0, description="... in these steps up to max_translation_m, metres.")
+    swing_grid_step_deg: float = Field(default=3.0, gt=0, description="The door and flap hypotheses turn in steps of this many degrees.")
+    reference_extent_fractions: tuple[float, ...] = Field(
+        default=(0.25, 0.5, 0.75),
+        description="Frames where the vanished surface first reaches these fractions of its largest extent are candidate reference frames.",
+    )
+    icp_distances_m: tuple[float, ...] = Field(
+        default=(0.08, 0.04), description="Correspondence distances of the part's robust ICP, coarse to fine, metres."
+    )
+    local_slide_span_m: float = Field(default=0.03, ge=0, description="A drawer hypothesis is refined within +- this slide, metres ...")
+    local_slide_step_m: float = Field(default=0.005, gt=0, description="... in these steps, metres.")
+    local_pivot_span_m: float = Field(default=0.06, ge=0, description="A hinge hypothesis is refined by shifting the hinge across the front within +- this, metres ...")
+    local_pivot_step_m: float = Field(default=0.02, gt=0, description="... in these steps, metres ...")
+    local_pivot_behind_m: tuple[float, ...] = Field(
+        default=(-0.03, -0.015, 0.0), description="... and along the front's normal by these offsets, metres ..."
+    )
+    local_swing_deg: tuple[float, ...] = Field(
+        default=(-6.0, -4.0, -2.0, 0.0, 2.0, 4.0, 6.0), description="... and its angle by these offsets, degrees."
+    )
+    depth_refine_span_m: float = Field(default=0.03, ge=0, description="A drawer's reference state is fine-tuned to depth within +- this, metres ...")
+    depth_refine_points: int = Field(default=25, ge=1, description="... at this many evenly spaced states.")
+    door_search_overshoot: float = Field(default=1.1, gt=0, description="A door's state is searched up to this multiple of its reference state.")
+    drawer_search_overshoot: float = Field(default=1.35, gt=0, description="A drawer's state is searched up to this multiple of its reference state.")
+    state_grid_points: int = Field(default=41, ge=2, description="Evenly spaced states in a frame's state search window.")
+    state_fine_points: int = Field(default=9, ge=1, description="States of the finer search around the best grid state.")
+    min_state_score: float = Field(
+        default=0.5, ge=0, le=1, description="A tracked state scored lower is not used to grow a drawer or measure its front's drift."
+    )
     fill_radius_px: int = Field(default=2, ge=0, description="Invalid depth is filled from measured depth pixels within this radius.")
     fill_sigma_colour: float = Field(default=20.0, gt=0, description="... weighted by colour likeness (Gaussian, RMS in 0-255 units),")
     fill_model_weight: float = Field(default=0.135, ge=0, description="... or from the model's first surface with this weight.")

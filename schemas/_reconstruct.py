@@ -51,6 +51,9 @@ class ReconstructConfig(StageConfig):
     holdout_every: int = Field(
         default=8, ge=0, description="Frames 0, k, 2k, ... are held out for evaluation (0 = none held out); k >= 2."
     )
+    low_psnr_note_db: float = Field(
+        default=25.0, description="The report notes visible artefacts when the held-out PSNR is below this, dB."
+    )
     voxel_size_m: float | None = Field(
         default=None, gt=0, description="Seeding voxel edge in metres; None = ~1.5 pixel footprints at the median depth."
     )

@@ -13,7 +13,7 @@ from artitwin_core.capture._calibrate import (
 from artitwin_core.capture._common import depth_intrinsics_from_rgb, downscale_rgb, scale_intrinsics
 from artitwin_core.capture._config import DepthCalibrationConfig, KeyframeConfig, PoseLagConfig
 from artitwin_core.capture._detect import FORMATS, detect_format, read_capture, recording_files
-from artitwin_core.capture._drift import DriftSignificance, PoseDrift
+from artitwin_core.capture._drift import DriftSignificance, PoseDrift, drift_significance
 from artitwin_core.capture._keyframes import KeyframeSelection, select_keyframes
 from artitwin_core.capture._lag import PoseLag, correct_pose_lag, estimate_pose_lag
 from artitwin_core.capture._nerfstudio import read_nerfstudio, write_nerfstudio
@@ -25,6 +25,7 @@ from artitwin_core.capture._stray import read_stray, write_stray
 from artitwin_core.capture._types import Capture, intrinsics_matrix
 
 __all__ = [
+    "drift_significance",
     "FORMATS",
     "Capture",
     "KeyframeConfig",

@@ -11,7 +11,14 @@ vanished canonical surface (``segment_part_at_frame``), labelled backwards throu
 from artitwin_core.change._canonical import CanonicalMesh, build_canonical_tsdf
 from artitwin_core.change._config import ChangeConfig, PartConfig
 from artitwin_core.change._detect import ChangeMaps, detect_changes
-from artitwin_core.change._report import ChangeSummary, mask_overlay, summarize_masks
+from artitwin_core.change._label import fill_depth_by_colour
+from artitwin_core.change._report import (
+    HAND_COLOUR,
+    PART_COLOURS,
+    ChangeSummary,
+    mask_overlay,
+    summarize_masks,
+)
 from artitwin_core.change._sam2 import propagate_masks_sam2
 from artitwin_core.change._segment import (
     PartSegmentation,
@@ -23,6 +30,9 @@ from artitwin_core.change._vanish import find_moved_parts
 from artitwin_core.change._views import FrameView, PartModel, frame_views
 
 __all__ = [
+    "HAND_COLOUR",
+    "PART_COLOURS",
+    "fill_depth_by_colour",
     "CanonicalMesh",
     "ChangeConfig",
     "ChangeMaps",

@@ -52,6 +52,32 @@ class PartConfig:
         violation_weight: how much a see-through pixel (observed behind the part) costs in the
             score relative to a supporting pixel.
         num_refined: best coarse hypotheses refined by ICP at the reference frame.
+        slide_grid_start_m, slide_grid_step_m: the drawer hypotheses slide from this far out
+            in these steps up to ``max_translation_m`` (metres).
+        swing_grid_step_deg: the door and flap hypotheses turn in steps of this many degrees
+            (from one step) up to ``max_rotation_rad``.
+        reference_extent_fractions: besides the most open frames, the first frames where the
+            vanished surface reaches these fractions of its largest extent are candidate
+            reference frames (a door is seen best on its way past the line of sight).
+        icp_distances_m: the part's robust ICP runs at these correspondence distances in turn,
+            coarse to fine (metres).
+        local_slide_span_m, local_slide_step_m: a drawer hypothesis is refined by changing its
+            slide within +-span in these steps (metres).
+        local_pivot_span_m, local_pivot_step_m: a hinge hypothesis is refined by shifting the
+            hinge across the front within +-span in these steps (metres) ...
+        local_pivot_behind_m: ... and along the front's normal by these offsets (metres;
+            hinges sit at the back of a door) ...
+        local_swing_deg: ... and its angle by these offsets (degrees).
+        depth_refine_span_m, depth_refine_points: a drawer's reference state is fine-tuned to
+            the observed depth over +-span (metres) at this many evenly spaced states.
+        door_search_overshoot, drawer_search_overshoot: a frame's state is searched up to this
+            multiple of the reference state (doors, drawers) unless the frame comes after a
+            reference frame that was not the last.
+        state_grid_points: evenly spaced states in a frame's state search window.
+        state_fine_points: states of the finer search around the best grid state (over one
+            grid step each side).
+        min_state_score: a tracked state with a lower score (support share) is not trusted to
+            grow a drawer from or to measure its front's drift at.
         search_window: backwards propagation searches the joint state within this fraction of
             the reference state around the next frame's state (and always tries closed).
         part_thickness_m: how far in front of the part's front-face samples its back face or
@@ -64,25 +90,20 @@ class PartConfig:
         max_part_radius_m: grown points stay within this distance of the part's centre.
         grow_frames: after tracking, a drawer also grows from this many other frames where it
             is open, at their tracked states (0: only from the reference frame). Once growth
-            stayed inside the front's outline (``drawer_footprint_m``), 6 frames lifted the
-            benchmark drawers' median IoU (door+drawer 0.873 -> 0.892, non-ideal-joints 0.846 ->
-            0.859, drawer 0.912 -> 0.944); before, non-ideal-joints' drawer, which tilts as it
-            slides, lost 0.31 (its growth ran into the door above it).
+            stayed inside the front's outline (``drawer_footprint_m``), 6 frames raised every
+            measured drawer's IoU (docs/accuracy.md, "Why the defaults are what they are").
         outline_margin_m: a drawer's growth takes, without a surface path to the front, changed
             points that moved back lie this far inside the front's outline (metres).
         see_through_m: closed samples that, at the reference state, lie this far (plus the
             depth tolerance) in front of the observation are dropped (another part's surface).
         front_fill_reach_m: a drawer's front is filled from the canonical mesh up to this far
             outside the outline of its vanished samples (metres): the rim its box's sides hid as
-            it slid out never vanished. On the door+drawer benchmark's drawer, median IoU 0.775
-            without it, 0.816 with 0.02 (0.799 with 0.03; the door's fill, whose rim vanishes
-            with it, does not reach: 0.02 there cost the door 0.01).
+            it slid out never vanished. 0.02 was best for a drawer; a door's fill, whose rim
+            vanishes with it, does not reach (docs/accuracy.md).
         front_seen_min_q_m: a drawer fitted at least this far open (metres) takes its front's
             outline from the reference frame, where the whole front stands clear of the carcass
             (:func:`_front_seen_open`), and fills the upright rectangle it spans; the fill then
-            does not reach past it. On the benchmark, drawer median IoU door+drawer 0.813 ->
-            0.873, non-ideal-joints 0.792 -> 0.846, drawer 0.893 -> 0.912 (with the axis along
-            the front normal, 6 growth frames off).
+            does not reach past it. It raised every measured drawer's IoU (docs/accuracy.md).
         front_plane_tol_m: the observed front, moved back, lies this close to the front's plane.
         door_slab_m: what grows onto a door lies at most this far behind its front (metres).
         drawer_footprint_m: what grows onto a drawer lies inside its front's outline seen along
@@ -121,6 +142,24 @@ class PartConfig:
     violation_weight: float = 2.0
     support_distance_m: float = 0.025
     search_window: float = 0.35
+    slide_grid_start_m: float = 0.02
+    slide_grid_step_m: float = 0.01
+    swing_grid_step_deg: float = 3.0
+    reference_extent_fractions: tuple[float, ...] = (0.25, 0.5, 0.75)
+    icp_distances_m: tuple[float, ...] = (0.08, 0.04)
+    local_slide_span_m: float = 0.03
+    local_slide_step_m: float = 0.005
+    local_pivot_span_m: float = 0.06
+    local_pivot_step_m: float = 0.02
+    local_pivot_behind_m: tuple[float, ...] = (-0.03, -0.015, 0.0)
+    local_swing_deg: tuple[float, ...] = (-6.0, -4.0, -2.0, 0.0, 2.0, 4.0, 6.0)
+    depth_refine_span_m: float = 0.03
+    depth_refine_points: int = 25
+    door_search_overshoot: float = 1.1
+    drawer_search_overshoot: float = 1.35
+    state_grid_points: int = 41
+    state_fine_points: int = 9
+    min_state_score: float = 0.5
     num_refined: int = 6
     hand_min_px: int = 30
     hand_border_px: int = 1

@@ -49,8 +49,8 @@ def _grow_part(
     ok = behind & near
     if model.joint_type == "revolute":
         # A door is a slab: what turns with it lies within a few centimetres behind its front.
-        # Deeper points are another part that moved beside it (non-ideal-joints' sagging door
-        # took 81 samples of the drawer opened below it, and covered the drawer with its label).
+        # Deeper points are another part that moved beside it (a sagging door took samples of
+        # the drawer opened below it, and covered the drawer with its label).
         ok &= back @ n > front_level - cfg.door_slab_m
     if mesh is not None and ok.any():
         ok[ok] = mesh.signed_distance(back[ok]) < cfg.grow_free_space_m
@@ -75,7 +75,7 @@ def _grow_part(
     added = np.zeros(len(back), bool)
     if model.joint_type == "prismatic" and cfg.drawer_footprint_m is not None:
         # What slides with a drawer lies within its front's outline, seen along the slide: growth
-        # past it ran into the door above non-ideal-joints' drawer, at other frames' states.
+        # past it ran into the door above a tilting drawer, at other frames' states.
         ok &= _behind_outline(back, front, n, -cfg.drawer_footprint_m)
     if model.joint_type == "prismatic":
         # A drawer's box and what stands in it are seen over the front's top edge, cut off from
@@ -160,7 +160,7 @@ def _front_fill(
     outline, about ``spacing`` apart: the parts of the front never seen to vanish (behind the
     hand that pulled it, out of view when it moved), which the part would otherwise lack when
     closed. (Filling the outline's plane instead also fills where the front is not flat or the
-    outline overshoots: measured 0.04 lower IoU on the drawer benchmark scene.) With
+    outline overshoots, which lowered a drawer's IoU.) With
     ``extend_m`` (``[2, 2]`` metres, see :func:`_front_rectangle`) the outline is the upright
     rectangle of :func:`_front_rectangle`."""
     level = float(np.median(front @ normal))
@@ -317,11 +317,11 @@ def _grow_over_frames(
     """A drawer's inside grown (:func:`_grow_part`) at up to ``grow_frames`` more frames, each
     at its tracked state ``states [T]``: one frame shows only some of the drawer's inside and
     the frames the camera passes by show the rest. (Growing a door so, from its less certain
-    states, measured 0.11 lower IoU on the door+drawer benchmark scene.) Frames where the part is less
-    than a third as open as at the reference frame, or tracked with a score below 0.5, are
+    states, lowered its IoU.) Frames where the part is less
+    than a third as open as at the reference frame, or tracked with a score below ``min_state_score``, are
     skipped (there the moved surface is close to the static one, or the state is uncertain)."""
     q_ref = abs(model.reference_q)
-    ok = np.nonzero((np.abs(states) > q_ref / 3) & (scores >= 0.5))[0]
+    ok = np.nonzero((np.abs(states) > q_ref / 3) & (scores >= cfg.min_state_score))[0]
     ok = ok[ok != model.reference_frame]
     if len(ok) == 0 or model.joint_type != "prismatic":
         return model

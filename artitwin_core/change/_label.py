@@ -158,9 +158,8 @@ def label_frame(
     if observed_rgb is not None:
         # Depth sensors drop the pixels on both sides of a depth edge: the outline of a hand in
         # front of the part, a door seen edge-on. Taken as no evidence against the model, they
-        # were labelled part wherever the model is drawn: three quarters of the hand pixels
-        # labelled part on the tiny benchmark scene, and most of the spurious pixels of the
-        # edge-on door in large-session-offset. Each takes the depth of the nearby measured
+        # were labelled part wherever the model is drawn (most of a hand's outline, most of an
+        # edge-on door's spurious pixels; docs/accuracy.md). Each takes the depth of the nearby measured
         # pixels that look like it (the hand's skin, not the wood behind it); where none does
         # (a thin edge-on door is invalid across its width), the model's first surface decides.
         first = np.fmin(np.where(np.isfinite(best), best, np.nan), static_depth)

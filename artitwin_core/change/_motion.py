@@ -40,7 +40,7 @@ def _front_normal(
         normals = res["primitive_normals"].numpy().astype(np.float64)
         normals *= np.sign(normals @ (towards - centroid))[:, None] + (normals @ (towards - centroid) == 0)[:, None]
         # The median, not the mean: samples on the rim and the handle see side faces, and their
-        # normals tilted the mean of the drawer benchmark's front by 10 degrees (median: 1.5).
+        # normals tilt the mean of a drawer's front by degrees where the median barely moves.
         mean = np.median(normals, axis=0)
         if np.linalg.norm(mean) > 0.5:
             n = mean / np.linalg.norm(mean)
@@ -60,7 +60,7 @@ def _hypotheses(points: np.ndarray, n: np.ndarray, up: np.ndarray, cfg: PartConf
     """
     c = points.mean(0)
     out = []
-    for q in np.arange(0.02, cfg.max_translation_m + 1e-9, 0.01):
+    for q in np.arange(cfg.slide_grid_start_m, cfg.max_translation_m + 1e-9, cfg.slide_grid_step_m):
         out.append(("prismatic", n, c, float(q)))
     side = np.cross(up, n)
     if np.linalg.norm(side) > 0.3:
@@ -68,7 +68,8 @@ def _hypotheses(points: np.ndarray, n: np.ndarray, up: np.ndarray, cfg: PartConf
         hinge_dirs = [(up, side), (side, up)]  # vertical hinge at a side edge; horizontal at top/bottom
     else:
         hinge_dirs = []
-    angles = np.deg2rad(np.arange(3.0, np.rad2deg(cfg.max_rotation_rad) + 1e-9, 3.0))
+    step = cfg.swing_grid_step_deg
+    angles = np.deg2rad(np.arange(step, np.rad2deg(cfg.max_rotation_rad) + 1e-9, step))
     for axis, across in hinge_dirs:
         s = (points - c) @ across
         for edge in (s.min(), s.max()):
@@ -151,11 +152,11 @@ def _fit_setup(
     frames = [len(views) - 1] + [int(t) for t in np.argsort(-counts)[:2] if counts[t] > 0]
     # Where the part is most open it may be seen worst: a door swung past the camera's line of
     # sight shows only its edge in the last frames, where no hinge explains anything and a
-    # flap at 107 deg "won" with 17 supporting samples (strong-hand-occlusion at seed 105). On
+    # flap far past the truth can "win" with a handful of supporting samples. On
     # its way there it is seen well: the first frames where the vanished surface reaches a
     # quarter, a half and three quarters of its largest extent are candidates too.
     if counts.max() > 0:
-        frames += [int(np.argmax(counts >= f * counts.max())) for f in (0.25, 0.5, 0.75)]
+        frames += [int(np.argmax(counts >= f * counts.max())) for f in cfg.reference_extent_fractions]
     return up, frames
 
 
@@ -203,8 +204,8 @@ def _drop_see_through(model: PartModel, view: FrameView, cfg: PartConfig) -> Par
     in front of what is observed there (we see through them): surface of a neighbouring part
     that the vanished-surface clustering gave to this one. The door above a drawer and its
     coplanar front leave one vanished surface; the door's bottom strip went to the drawer,
-    whose label then covered the door while it swung past (90-220 pixels a frame on the
-    door+drawer benchmark) and its tracks followed the door. Moved with the drawer, that strip
+    whose label then covered the door while it swung past, and its tracks followed the door.
+    Moved with the drawer, that strip
     floats 25 cm out in front of the carcass, where the camera sees the floor."""
     m = model.motion(model.reference_q)
     moved = model.closed_points @ m[:3, :3].T + m[:3, 3]
@@ -243,13 +244,13 @@ def _fit_at(
         model = _local_refine(coarse, view, sub, cfg)
         init = model.motion(model.reference_q)
         candidates = [model]
-        for dist in (0.08, 0.04):
+        for dist in cfg.icp_distances_m:
             init = _icp_point_to_plane(closed_points, tgt_pts, tgt_nrm, tgt_tree, init, dist)
         jt, axis, pivot, q = _joint_from_motion(init, closed_points.mean(0))
         if jt == "prismatic":
             # A drawer slides along its front's normal. ICP slides a flat front freely in its own
-            # plane (only its rim and handle hold it there): it took door+drawer's drawer 6.5 deg
-            # off the normal, and the front seen at this frame 2.8 cm sideways once moved back.
+            # plane (only its rim and handle hold it there), degrees off the normal and
+            # centimetres sideways.
             axis, q = normal, float(init[:3, 3] @ normal)
         candidates.append(PartModel(closed_points, jt, axis, pivot, r, q, onset_frame, normal))
         for cand in candidates:
@@ -257,7 +258,7 @@ def _fit_at(
             score = motion_score(view, sub @ m[:3, :3].T + m[:3, 3], sub, cfg)[0]
             if score > best_score:
                 best, best_score = cand, score
-    return _refine_state_by_depth(best, view, sub), best_score
+    return _refine_state_by_depth(best, view, sub, cfg), best_score
 
 
 def _icp_point_to_plane(
@@ -312,8 +313,8 @@ def _depth_cost(view: FrameView, moved: np.ndarray, cap_m: float = 0.03) -> floa
     return float(np.mean(np.where(np.isfinite(res), np.minimum(res, cap_m), cap_m)))
 
 
-def _refine_state_by_depth(model: PartModel, view: FrameView, sub: np.ndarray) -> PartModel:
-    """A prismatic part's reference state fine-tuned (+-3 cm) to fit the observed depth.
+def _refine_state_by_depth(model: PartModel, view: FrameView, sub: np.ndarray, cfg: PartConfig) -> PartModel:
+    """A prismatic part's reference state fine-tuned (+-``depth_refine_span_m``) to fit the observed depth.
 
     The support score counts samples within a few centimetres of an observed point, so it is
     flat over a couple of centimetres of joint state; a drawer fitted 2.5 cm short leaves its
@@ -321,9 +322,9 @@ def _refine_state_by_depth(model: PartModel, view: FrameView, sub: np.ndarray) -
     drops it. The truncated depth residual has its minimum at the true state."""
     if model.joint_type != "prismatic":
         return model  # a door is often seen edge-on, where grazing samples dominate the residual
-    span = 0.03
+    span = cfg.depth_refine_span_m
     best, best_cost = model, np.inf
-    for dq in np.linspace(-span, span, 25):
+    for dq in np.linspace(-span, span, cfg.depth_refine_points):
         cand = replace(model, reference_q=model.reference_q + dq)
         m = cand.motion(cand.reference_q)
         cost = _depth_cost(view, sub @ m[:3, :3].T + m[:3, 3])
@@ -343,7 +344,8 @@ def _local_refine(model: PartModel, view: FrameView, sub: np.ndarray, cfg: PartC
 
     best, best_score = model, score(model)
     if model.joint_type == "prismatic":
-        for dq in np.arange(-0.03, 0.0301, 0.005):
+        span, step = cfg.local_slide_span_m, cfg.local_slide_step_m
+        for dq in np.arange(-span, span + 0.5 * step, step):
             cand = replace(model, reference_q=model.reference_q + dq)
             sc = score(cand)
             if sc > best_score:
@@ -351,10 +353,11 @@ def _local_refine(model: PartModel, view: FrameView, sub: np.ndarray, cfg: PartC
         return best
     across = np.cross(model.axis, model.front_normal)
     across /= max(np.linalg.norm(across), 1e-9)
-    for da in np.arange(-0.06, 0.0601, 0.02):
-        for dn in (-0.03, -0.015, 0.0):
+    span, step = cfg.local_pivot_span_m, cfg.local_pivot_step_m
+    for da in np.arange(-span, span + 0.5 * step, step):
+        for dn in cfg.local_pivot_behind_m:
             pivot = model.pivot + across * da + model.front_normal * dn
-            for dq in np.radians([-6.0, -4.0, -2.0, 0.0, 2.0, 4.0, 6.0]):
+            for dq in np.radians(list(cfg.local_swing_deg)):
                 cand = replace(model, pivot=pivot, reference_q=model.reference_q + dq)
                 sc = score(cand)
                 if sc > best_score:
@@ -383,17 +386,16 @@ def _slide_from_outline(
     ``grown``); ``model`` itself when the drift cannot be measured.
 
     The slide along the normal alone assumes the front keeps its place in its plane as it
-    slides. A drawer that dips as it slides (non-ideal-joints: 0.04 rad at full travel, its
-    front 1.4 cm lower at the reference frame) does not: its outline seen slid out and moved
-    back along the normal landed 1.85 cm low (1.4 cm of dip, 0.4 cm from the fitted normal's
-    1 degree of upward tilt), and the front's top face seen from above, which the closed frames
+    slides. A drawer that dips as it slides does not: its outline seen slid out and moved
+    back along the normal lands low (the dip plus the fitted normal's tilt; docs/accuracy.md),
+    and the front's top face seen from above, which the closed frames
     show once the door above is open, went with it, inside the front. The 6-DOF motion ICP
-    finds at the reference frame does not tell (a flat front slides in its own plane: 2-16
-    degrees and 1-2 cm off on the benchmark drawers). The outline's edges that the frames see
+    finds at the reference frame does not tell (a flat front slides in its own plane: degrees
+    and centimetres off). The outline's edges that the frames see
     clear (the plane is seen through just past them, :func:`_open_reach`) do: each moves linearly with the state, its slope is the
     drift (a shared slope per in-plane axis, an offset per edge, least squares; at least three
-    edge positions over ``front_seen_min_q_m / 2`` of travel). On the ideal benchmark drawers it
-    comes out under 2 cm per metre."""
+    edge positions over ``front_seen_min_q_m / 2`` of travel). On an ideal drawer it comes out
+    near zero."""
     if abs(model.reference_q) < cfg.front_seen_min_q_m:
         return model
     r = model.reference_frame
@@ -406,7 +408,7 @@ def _slide_from_outline(
             if abs(q) < cfg.front_seen_min_q_m:
                 if step < 0:
                     break  # earlier frames are less open still
-            elif score >= 0.5:
+            elif score >= cfg.min_state_score:
                 states[t] = q
             current, t = q, t + step
     n = model.front_normal

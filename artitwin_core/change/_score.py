@@ -86,16 +86,16 @@ def _best_state(
     ``after_reference``: ``view`` comes after the model's reference frame, which was not the
     last, so the part may open further than there."""
     span = cfg.search_window * abs(model.reference_q)
-    # A drawer's reference frame need not be where it is most open (non-ideal-joints' drawer was
-    # fitted at 0.207 m and opens to 0.25 m); a door's usually is, and searching past it invites
+    # A drawer's reference frame need not be where it is most open (a tilting drawer is fitted
+    # short of its full travel); a door's usually is, and searching past it invites
     # grazing-angle states. After a reference frame that is not the last (the door seen best on
     # its way past the camera's line of sight) the state goes on to the hypotheses' limit.
     reach = cfg.max_rotation_rad if model.joint_type == "revolute" else cfg.max_translation_m
-    far = model.reference_q * (1.1 if model.joint_type == "revolute" else 1.35)
+    far = model.reference_q * (cfg.door_search_overshoot if model.joint_type == "revolute" else cfg.drawer_search_overshoot)
     if after_reference:
         far = float(np.sign(model.reference_q)) * max(abs(far), reach)
     lo, hi = sorted((0.0, far))
-    grid = np.unique(np.clip(np.concatenate([np.linspace(centre_q - span, centre_q + span, 41), [0.0]]), lo, hi))
+    grid = np.unique(np.clip(np.concatenate([np.linspace(centre_q - span, centre_q + span, cfg.state_grid_points), [0.0]]), lo, hi))
 
     sub = _scoring_subset(model.closed_points)
 
@@ -107,7 +107,7 @@ def _best_state(
     i = int(np.argmax([s[0] for s in scores]))
     q = float(grid[i])
     step = (grid[1] - grid[0]) if len(grid) > 1 else 0.0
-    for q2 in np.linspace(q - step, q + step, 9):
+    for q2 in np.linspace(q - step, q + step, cfg.state_fine_points):
         if lo <= q2 <= hi:
             s2 = evaluate(q2)
             if s2[0] > scores[i][0]:

@@ -119,8 +119,8 @@ def screen_candidates(
         support = _reference_support(model, views[model.reference_frame], cfg)
         if support < cfg.min_part_support:
             # No motion of this surface explains what the reference frame sees: it vanished for
-            # another reason. strong-hand-occlusion's cabinet side, seen edge-on, vanished from
-            # the first frame on and came out as a second part with no support at all.
+            # another reason (a cabinet side seen edge-on can vanish from the first frame on and
+            # would come out as a second part with no support at all).
             fates.append(PartFate(
                 candidate=i, fate="dropped", stage="part_masks",
                 reason=f"no motion of its {len(model.closed_points)} surface samples explains what frame "

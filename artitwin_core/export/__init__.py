@@ -20,9 +20,17 @@ from artitwin_core.export._ply import export_part_plys
 from artitwin_core.export._simcheck import SIMULATORS, SimPart, SimResult, check_in_simulators
 from artitwin_core.export._urdf import export_urdf
 from artitwin_core.export._usd import UsdResult, export_usd
-from artitwin_core.export._usdcheck import USD_SIMULATORS, UsdJoint, check_usd, read_usd_joints, validate_usd
+from artitwin_core.export._usdcheck import (
+    USD_SIMULATORS,
+    UsdJoint,
+    check_usd,
+    parse_physics,
+    read_usd_joints,
+    validate_usd,
+)
 
 __all__ = [
+    "parse_physics",
     "SIMULATORS",
     "USD_SIMULATORS",
     "WOOD_DENSITY_KG_M3",

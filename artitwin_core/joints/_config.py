@@ -33,8 +33,8 @@ class JointFitConfig:
         screw_bic_margin: BIC units by which the screw must beat the revolute (10 = "very
             strong" evidence in Kass and Raftery's scale).
         min_screw_travel_m: the screw's axial travel over the observed range must exceed this
-            (the pipeline's tracks of the non-screw "door" scene drift 7 mm along the hinge,
-            linearly with q, over 1 rad: a trend no frame-level test can tell from a pitch).
+            (a plain hinge's tracks can drift millimetres along it, linearly with q: a trend no
+            frame-level test can tell from a pitch; docs/accuracy.md).
         screw_min_pitch_t: the screw's pitch must stand this many standard errors above zero
             when the frames' displacements along the revolute fit's axis are regressed on its
             states (frames, not points, are the independent samples, and the null model's axis
@@ -71,13 +71,22 @@ class JointFitConfig:
         face_chi2: the test's threshold (chi-square, 2 degrees of freedom; 9.21 is its 99%
             quantile): above it the tracks' direction stands.
         slide_floor_rad: systematic error of the tracks' slide direction, added in quadrature to
-            the standard error their frames' scatter gives in that test: the pipeline's tracks of the ideal
-            benchmark drawers run 0.3-1.0 deg off the truth while their frames regress tightly
+            the standard error their frames' scatter gives in that test: the pipeline's tracks of
+            ideal drawers run up to a degree off the truth while their frames regress tightly
             on ``q`` (tracker errors correlated over frames, which the scatter does not show).
         tilt_chi2, tilt_min_rad: a slide whose frames turn significantly (chi-square over 3 axes
             at least ``tilt_chi2``, 11.34 its 99% quantile) and by at least ``tilt_min_rad``
             over the travel is a tilting slide: its direction is its closed face's normal if the
             turn explains the tracks' disagreement with it (``_slide_along_face``).
+        tilt_explain_sigmas: the turn explains the tracks' direction when their gap from the
+            face normal, along the turn's axis, is within this many of their standard errors.
+        face_fit_min_points, face_fit_iterations, face_fit_band_m: the face plane's robust fit
+            (least points, RANSAC samples, and the band in metres its score counts points in).
+        min_frame_tracks: a frame with fewer usable tracks takes the global noise scale
+            instead of its own median residual.
+        pitch_min_support, pitch_support_fraction: the screw's pitch test uses the frames whose
+            rigid motion rests on at least this many RANSAC inliers, and on at least this
+            fraction of the median frame's.
         seed: RANSAC random seed.
     """
 
@@ -114,6 +123,13 @@ class JointFitConfig:
     slide_floor_rad: float = float(np.deg2rad(0.7))
     tilt_chi2: float = 11.34
     tilt_min_rad: float = float(np.deg2rad(0.5))
+    tilt_explain_sigmas: float = 3.0
+    face_fit_min_points: int = 20
+    face_fit_iterations: int = 200
+    face_fit_band_m: float = 0.01
+    min_frame_tracks: int = 10
+    pitch_min_support: float = 10.0
+    pitch_support_fraction: float = 0.2
     seed: int = 0
 
     def __post_init__(self) -> None:
@@ -145,13 +161,10 @@ class StateRefineConfig:
         mask_erode_px: the part mask is eroded by this many RGB pixels (mixed depth at borders).
         hand_dilate_depth_px: the hand mask is grown by this many depth pixels (at the RGB/depth
             size ratio, in RGB pixels) before it is excluded. A hand mask found in depth misses
-            the hand's outline, whose depth pixels mix hand and part (the pipeline's masks on
-            "door": 8456 of 51128 hand pixels), and the lift samples depth bilinearly, one
-            depth pixel farther. The hand's depth leaking into the part's points pulls a
-            frame's ``q``: on "door", 97 lifted points lay over 3 cm in front of the door's
-            face at 1.5 depth pixels, 38 at 2.5. State RMSE (deg) on the pipeline's masks: door
-            0.70 / 0.19 / 0.24 and strong-hand-occlusion 0.72 / 0.29 / 0.51 at 1.5 / 2.5 / 3.5
-            (wider leaves less of the door near the hand).
+            the hand's outline, whose depth pixels mix hand and part, and the lift samples depth
+            bilinearly, one depth pixel farther. The hand's depth leaking into the part's points
+            pulls a frame's ``q``; 2.5 gave the lowest state error (wider leaves less of the
+            door near the hand; docs/accuracy.md).
         edge_rel: depth neighbours may spread by this fraction of the depth (the tracker's 0.05
             rejects a surface seen at 65+ deg from its normal, which is how a door's inside
             face is often seen; the silhouette's mixed pixels spread far more).
@@ -165,6 +178,7 @@ class StateRefineConfig:
         coarse_points: about this many of a frame's points score the first grid.
         search_below_rad, search_above_rad: the grid spans the seeds' range widened by these.
         fine_step_rad: step of the second grid around the coarse minimum.
+        fine_span_steps: the second grid spans this many coarse steps each side of it.
         agree_rad: a confident tracked ``q`` within this of the depth fit is kept as it is.
         q_tolerance_rad: depth-fit standard error at which its confidence is 0.5.
         min_inlier_fraction: depth fits with fewer inliers get no confidence.
@@ -181,9 +195,8 @@ class StateRefineConfig:
             at the end of a recording (opened past the camera's line of sight) is such a
             sliver: most of its points are the door's edge face, which the closed model lacks
             (the normal gate rejects them), so its inlier fraction is 0.1-0.4 while the face
-            points still pin the state. Measured on "door" at seed 202 and "high-noise" at seed
-            106: the last 7-9 frames' fits were 0.1-2.6 deg from the truth, with standard errors
-            0.14-0.37 deg, where holding left them 13 deg short.
+            points still pin the state: such fits came within a few degrees of the truth where
+            holding left them far short (docs/accuracy.md).
         grow: whether depth-fitted frames add their points to the model at all.
         smooth_model: move each model point onto its neighbours' plane.
         normal_gate_deg: a frame point whose own normal (PCA of ``frame_normal_neighbours`` of
@@ -228,6 +241,7 @@ class StateRefineConfig:
     search_below_rad: float = float(np.radians(20.0))
     search_above_rad: float = float(np.radians(100.0))
     fine_step_rad: float = float(np.radians(0.1))
+    fine_span_steps: float = 1.5
     agree_rad: float = float(np.radians(1.5))
     q_tolerance_rad: float = float(np.radians(1.0))
     min_inlier_fraction: float = 0.4

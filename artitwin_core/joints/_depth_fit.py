@@ -1,8 +1,8 @@
 """Fitting a hinged slab's line (axis and pivot) to the planes its faces show in depth.
 
 Point tracks on a weakly textured door slide along its surface, and the joint fitted to them
-inherits their bias: on the white door of the benchmark the pivot line sat 1 cm off, along the
-door's normal, where a door's tracks say least. A door is a slab, and depth measures its faces
+inherits their bias: on a white door the pivot line sat centimetres off, along the door's
+normal, where a door's tracks say least. A door is a slab, and depth measures its faces
 well: each frame's visible face is a plane fitted to a thousand points, which averages the
 depth noise down to a fraction of a millimetre without matching any point to any other.
 
@@ -252,8 +252,7 @@ def fit_line_from_planes(joint: Joint, lifted, cams: np.ndarray, cfg: StateRefin
         plane = _robust_plane(lifted[t][0], n_pred, cfg, rng)
         if plane is None or plane.inliers < cfg.min_points or plane.fraction < cfg.plane_min_fraction:
             continue
-        inside = bool((cams[t] - plane.centroid) @ plane.normal < 0)
-        planes[int(t)] = (plane, inside)
+        planes[int(t)] = (plane, bool((cams[t] - plane.centroid) @ plane.normal < 0))
     frames = np.array(sorted(planes), dtype=np.int64)
     if frames.size < cfg.axis_min_frames or np.ptp(q0[frames]) < cfg.axis_min_span_rad:
         return None

@@ -64,7 +64,7 @@ from artitwin_core.joints._fit import (
 from artitwin_core.joints._frame_motions import FrameMotions, frame_motions
 from artitwin_core.joints._result import HypothesisScore, JointFit
 from artitwin_core.joints._select import _score, select_joint
-from artitwin_core.joints._types import Joint
+from artitwin_core.joints._types import Joint, JointType
 from artitwin_core.tracking import Trajectories
 
 
@@ -118,14 +118,14 @@ def estimate_joint(
 
 def fit_hypotheses(
     pts: np.ndarray, valid: np.ndarray, ref: int, m: FrameMotions, cfg: JointFitConfig
-) -> tuple[dict[str, HypothesisScore], dict[str, tuple[_Fit, Joint, np.ndarray]]]:
+) -> tuple[dict[JointType, HypothesisScore], dict[JointType, tuple[_Fit, Joint, np.ndarray]]]:
     """Every joint type fitted to the tracks ``pts [T, N, 3]`` and scored: per type, its score and
     ``(fit, finalised joint, latent closed-state points [N, 3])``."""
     t_count = pts.shape[0]
     y = np.where(valid[..., None], pts, 0.0)
     x0 = _latent_start(pts, valid, ref, y, m)
     w0 = m.s_mask.astype(float)
-    inits = {
+    inits: dict[JointType, tuple] = {
         "fixed": (np.array([0.0, 0.0, 1.0]), m.centroid, 0.0, np.zeros(t_count)),
         "prismatic": _init_prismatic(m.rots, m.trans, m.has, m.centroid),
         "revolute": _init_rotational(m.rots, m.trans, m.has, m.centroid, with_pitch=False),
@@ -146,7 +146,7 @@ def fit_hypotheses(
     finals = {}
     for kind, fit in fits.items():
         q_fit = _fit_q(fit)
-        bic, k, n_in = _score(fit, q_fit, y, valid, s_mask, sigma, cfg)
+        bic, n_par, n_in = _score(fit, q_fit, y, valid, s_mask, sigma, cfg)
         fit.q = q_fit
         joint, points = _finalize(fit, ref, y, sigma, cfg)
         finals[kind] = (fit, joint, points)
@@ -156,7 +156,7 @@ def fit_hypotheses(
         )
         rms_all = float(np.sqrt(np.mean(d2[used]))) if used.any() else float("nan")
         hyps[kind] = HypothesisScore(
-            kind, bic, k, int(fit.track_ok.sum()), n_in, rms_all, bool(converged[kind]), joint
+            kind, bic, n_par, int(fit.track_ok.sum()), n_in, rms_all, bool(converged[kind]), joint
         )
     return hyps, finals
 

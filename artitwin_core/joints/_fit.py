@@ -20,13 +20,14 @@ from scipy.spatial.transform import Rotation
 from artitwin_core.joints._config import JointFitConfig
 from artitwin_core.joints._model import joint_motion, rotations_about, skew
 from artitwin_core.joints._rigid import CHI3_MEDIAN
+from artitwin_core.joints._types import JointType
 
 
 @dataclass
 class _Fit:
     """Internal state of one hypothesis fit (q free at every frame: gauge fixed afterwards)."""
 
-    kind: str
+    kind: JointType
     axis: np.ndarray
     pivot: np.ndarray
     pitch: float
@@ -46,7 +47,7 @@ def _tangent_basis(a: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     return e1, np.cross(a, e1)
 
 
-def _motions(fit_kind: str, axis, pivot, q, pitch) -> tuple[np.ndarray, np.ndarray]:
+def _motions(fit_kind: JointType, axis, pivot, q, pitch) -> tuple[np.ndarray, np.ndarray]:
     qq = np.nan_to_num(q)
     return joint_motion(fit_kind, axis, pivot, qq, pitch)
 
@@ -78,7 +79,7 @@ def _robust_weights(r, valid, track_ok_prev, sigma_glob, cfg: JointFitConfig):
     """Per-frame noise scale, hard gate and Cauchy weights from residuals ``r [T, N]``."""
     t_count = r.shape[0]
     use = valid & track_ok_prev[None, :]
-    enough = use.sum(1) >= 10
+    enough = use.sum(1) >= cfg.min_frame_tracks
     med = np.full(t_count, sigma_glob * CHI3_MEDIAN)
     if enough.any():
         med[enough] = np.nanmedian(np.where(use[enough], r[enough], np.nan), axis=1)

@@ -33,9 +33,9 @@ def _refine_frame_level(fit: _Fit, y: np.ndarray, valid: np.ndarray, ref: int, c
     (in place; False where there are too few frames).
 
     The tracker's errors are shared by the tracks of a frame, and they have directions: a door's
-    tracks slide together along its grain, which runs along the hinge (6-7 mm at 30-43 deg on
-    "door"), and a weakly textured face turns whole frames by 10-30 mrad about its own normal
-    ("low-texture-door"). The point-level fit counts each frame's error once per track and
+    tracks slide together along its grain, which runs along the hinge, and a weakly textured
+    face turns whole frames by tens of mrad about its own normal. The point-level fit counts
+    each frame's error once per track and
     tilts the axis to explain it. Here each frame ``t`` is one sample: its rigid motion ``M_t``
     (weighted Kabsch of the fit's latent points onto the frame's inlier observations) is
     compared with the joint's, ``J(q_t) G`` (``G``: the closed pose of the latent points, free,
@@ -43,9 +43,8 @@ def _refine_frame_level(fit: _Fit, y: np.ndarray, valid: np.ndarray, ref: int, c
     centroid's displacement error, each along the axis, the part's radial direction and its
     normal (the basis turns with the part, as the tracker's error modes do). Their spreads are
     estimated from the residuals and the fit is reweighted by them, alternating: a component
-    the frames scatter in (the slide on "door", the in-plane turn on "low-texture-door") stops
-    steering the axis. Measured on the pipeline's tracks (axis error, deg): door 0.84 -> 0.07,
-    low-texture-door 1.50 -> 0.31, door+drawer 0.73 -> 0.22, tiny 1.69 -> 1.25.
+    the frames scatter in (the slide along the grain, the in-plane turn) stops steering the
+    axis, which lowers the axis error on every measured door (docs/accuracy.md).
     The latent points are moved to their fitted closed pose ``G``; per-frame ``q`` follows.
     """
     frames = _frames_with_support(fit.weights)
@@ -117,9 +116,8 @@ def _frame_level_errors(jac: np.ndarray, rescale: np.ndarray) -> tuple[float | N
     samples, so an error common to a frame's tracks (a pose error of the recording, the tracker
     sliding a whole face) counts once per frame, as it should; a point-level covariance would
     shrink it by the number of tracks. What every frame shares is not seen: the registration's
-    error, or a tracker error that grows with the opening and so looks like a tilted axis (on
-    the high-noise scene's tracks lifted at the true poses, 0.45 deg of axis error against a
-    0.06 deg standard error). The first four parameters are the axis' and the pivot's tangent
+    error, or a tracker error that grows with the opening and so looks like a tilted axis
+    (several times the standard error on noisy tracks). The first four parameters are the axis' and the pivot's tangent
     steps. None where the fit is singular."""
     n_par = jac.shape[1]
     j = np.asarray(jac, dtype=np.float64).reshape(-1, 6, n_par) * rescale[None, :, None]

@@ -124,7 +124,7 @@ def ransac_rigid(
                 needed = int(np.ceil(np.log(1 - confidence) / np.log(max(miss, 1e-12))))
         if m == 3:
             break
-    if best_rt is None:
+    if best_rt is None or best_r2 is None:
         return None
     r2 = best_r2
     inl = r2 <= threshold_m**2

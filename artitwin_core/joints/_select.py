@@ -21,7 +21,7 @@ from artitwin_core.joints._frame_motions import FrameMotions
 from artitwin_core.joints._model import joint_motion
 from artitwin_core.joints._result import HypothesisScore, JointFit
 from artitwin_core.joints._slide import _slide_along_face
-from artitwin_core.joints._types import Joint
+from artitwin_core.joints._types import Joint, JointType
 
 
 def _n_params(kind: str, n_frames: int) -> int:
@@ -100,9 +100,9 @@ def _pitch_significance(
 
     The axis and ``q_t`` are the null model's (a score test): the screw's own fit is free to tilt
     its axis so that the tilt's leak of the swing into the axial direction (``|chord| sin(tilt)``,
-    growing with ``q``) reads as a pitch. On low-texture-door, whose per-frame rotations carry
-    10-30 mrad of tracker error, the screw tilted its axis 4.4 deg and read 31 mm of travel at
-    t = 11; along the revolute's axis (1.5 deg off) the same frames give t = 2.7. A real pitch
+    growing with ``q``) reads as a pitch: on a weakly textured door, whose per-frame rotations
+    carry tens of mrad of tracker error, the screw's own fit read a confident pitch where the
+    revolute's axis saw none (docs/accuracy.md). A real pitch
     moves every point of the part along the axis by the same amount, which no tilt of a hinge
     reproduces, so it shows along the revolute's axis too (``test_screw_*``). Fewer than 4
     frames, or fewer than 3 distinct states, give 0 (not identifiable).
@@ -133,8 +133,8 @@ def select_joint(
     valid: np.ndarray,
     ref: int,
     m: FrameMotions,
-    hyps: dict[str, HypothesisScore],
-    finals: dict[str, tuple[_Fit, Joint, np.ndarray]],
+    hyps: dict[JointType, HypothesisScore],
+    finals: dict[JointType, tuple[_Fit, Joint, np.ndarray]],
     cfg: JointFitConfig,
 ) -> JointFit:
     """The joint the hypotheses ``hyps`` (fits ``finals``) select, refined as its type needs: a
@@ -175,23 +175,23 @@ def select_joint(
 
 
 def _best_moving(
-    hyps: dict[str, HypothesisScore],
-    finals: dict[str, tuple[_Fit, Joint, np.ndarray]],
+    hyps: dict[JointType, HypothesisScore],
+    finals: dict[JointType, tuple[_Fit, Joint, np.ndarray]],
     m: FrameMotions,
     cfg: JointFitConfig,
-) -> str:
+) -> JointType:
     """The moving joint type with the best BIC among the plausible ones; the screw only when it
     beats the revolute by ``screw_bic_margin`` with enough travel and a significant pitch."""
     plausible = {
         k: _rotation_plausible(finals[k][1], finals[k][2], finals[k][0].track_ok, cfg)
         for k in ("revolute", "screw")
     }
-    moving = [k for k in ("prismatic", "revolute") if k == "prismatic" or plausible[k]]
+    moving: list[JointType] = [k for k in ("prismatic", "revolute") if k == "prismatic" or plausible[k]]
     best = min(moving, key=lambda k: hyps[k].bic)
     screw = finals["screw"][1]
     travel = abs(screw.pitch) * float(screw.q_range[1] - screw.q_range[0])
     support = m.ransac_in.sum(1)
-    strong = m.has & (support >= max(10.0, 0.2 * float(np.median(support[m.has]))))
+    strong = m.has & (support >= max(cfg.pitch_min_support, cfg.pitch_support_fraction * float(np.median(support[m.has]))))
     # Tested at the revolute's fit (see _pitch_significance); the screw's own axis when the
     # revolute ran away (no hinge near the part to test against).
     null = finals["revolute"][1] if plausible["revolute"] else screw

@@ -22,10 +22,10 @@ def _slide_along_face(
 
     A drawer slides along its front's normal. The tracks measure the slide's direction from the
     part's displacement across ``a`` per unit of travel, and a tracker's error is common to a
-    frame's points (the benchmark drawers' tracks shift a frame by 2-7 mm across the slide
-    while moving): over 0.25 m of travel that is 0.4-1 deg, frames, not points, being the
+    frame's points (a drawer's tracks shift a frame by millimetres across the slide while
+    moving): over 0.25 m of travel that is up to a degree, frames, not points, being the
     independent samples. The front's normal is a plane fit over hundreds of points, each with
-    its own noise (0.02-0.09 deg from the truth on the benchmark drawers). Per axis ``e``
+    its own noise (a tenth of a degree or less from the truth). Per axis ``e``
     across ``a``: the tracks' slope is the regression of the frames' displacements (``rigid
     [T, 4, 4]`` applied to the points' centroid) along ``e`` on ``q``, with its standard error
     from the frames' scatter; the face's slope is ``(n.e) / (n.a)``, with the plane fit's
@@ -36,11 +36,11 @@ def _slide_along_face(
     ``face_min_fraction`` of ``points [N, 3]`` (the closed part's inliers) on one plane whose
     normal is within ``face_max_angle_rad`` of ``a``.
 
-    A drawer that also turns as it slides (non-ideal-joints: its front dips 2.3 deg over the
-    travel) is tested first (``_tilt_rate``). Its tracks' direction is their centroid's, 2.7 deg
-    off the rail there, and the rail's direction is that of the turn's pivot, which no track
-    sees; the prismatic model's latent ``points`` are smeared by the turn (their face came out
-    0.6 deg off). So a tilting slide takes its face from ``points_ref [M, 3]``, the reference
+    A drawer that also turns as it slides (its front dips over the travel) is tested first
+    (``_tilt_rate``). Its tracks' direction is their centroid's, degrees off the rail, and the
+    rail's direction is that of the turn's pivot, which no track sees; the prismatic model's
+    latent ``points`` are smeared by the turn. So a tilting slide takes its face from
+    ``points_ref [M, 3]``, the reference
     frame's own observations, and slides along that normal if the turn explains the tracks'
     disagreement with it (``_tilt_explains``); else it keeps the tracks' direction.
 
@@ -75,15 +75,16 @@ def _slide_along_face(
     # A tilting slide's tracks may stray from the face normal by up to the turn's lever.
     stray = float(np.arctan(np.linalg.norm(tilt) * reach)) if tilt is not None else 0.0
     plane = robust_plane(
-        face_points, a, np.random.default_rng(cfg.seed), min_points=20,
-        normal_tol_deg=float(np.degrees(cfg.face_max_angle_rad + stray)), iterations=200, band_m=0.01,
+        face_points, a, np.random.default_rng(cfg.seed), min_points=cfg.face_fit_min_points,
+        normal_tol_deg=float(np.degrees(cfg.face_max_angle_rad + stray)), iterations=cfg.face_fit_iterations,
+        band_m=cfg.face_fit_band_m,
     )
     if plane is None or plane.fraction < cfg.face_min_fraction:
         return joint
     n = plane.normal
     on_face = face_points[np.abs((face_points - plane.centroid) @ n) < 2.5 * plane.sigma] - plane.centroid
     if tilt is not None:
-        gap = sum((slope - float(n @ e) / float(n @ a)) * e for e, slope in zip(_tangent_basis(a), slopes, strict=True))
+        gap = np.asarray(sum((slope - float(n @ e) / float(n @ a)) * e for e, slope in zip(_tangent_basis(a), slopes, strict=True)))
         if not _tilt_explains(gap, tilt, reach, float(np.sqrt(max(var_tracks))), cfg):
             return joint
         fused = [float(n @ e) / float(n @ a) for e in _tangent_basis(a)]
@@ -151,10 +152,10 @@ def _tilt_explains(gap: np.ndarray, rate: np.ndarray, reach: float, se_tracks: f
     A turn about ``w`` moves a point ``x`` by ``w x (x - p)`` per unit of travel on top of the
     slide at its pivot ``p``, so the tracks' centroid ``c`` strays from the rail by ``w x (c -
     p)``: a gap across ``w``, of at most ``|w| reach`` for a pivot within ``reach`` of the
-    centroid. True when the gap's part along ``w`` is within 3 of the tracks' standard errors
+    centroid. True when the gap's part along ``w`` is within ``tilt_explain_sigmas`` of the tracks' standard errors
     ``se_tracks`` (widened by ``slide_floor_rad``) and the rest within ``|w| reach``."""
     turn = float(np.linalg.norm(rate))
     w = rate / turn
     along = abs(float(gap @ w))
     across = float(np.linalg.norm(gap - (gap @ w) * w))
-    return along <= 3.0 * float(np.hypot(se_tracks, cfg.slide_floor_rad)) and across <= turn * reach
+    return along <= cfg.tilt_explain_sigmas * float(np.hypot(se_tracks, cfg.slide_floor_rad)) and across <= turn * reach

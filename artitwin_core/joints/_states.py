@@ -19,7 +19,7 @@ after that (the door's edge, then its inside face), so each frame's ``q`` is fit
    truncated quadratic loss counts points farther than ``gate_m`` from the model, or whose own
    normal turns more than ``normal_gate_deg`` from their match's (the door's edge face against
    the front face's border), as outliers.
-4. Optionally (``grow``, off: it spread one frame's error to the next on the benchmark) frames
+4. Optionally (``grow``, off: it spread one frame's error to the next) frames
    fitted confidently add their points to the model.
 
 A frame keeps its tracked ``q`` where that is confident and the depth fit agrees with it; the
@@ -158,7 +158,8 @@ def _fit_frame(
     # The coarse grid only has to land in the right basin: a subsample of the points will do.
     cost, _, _ = cost_at(grid, max(1, pts.shape[0] // cfg.coarse_points))
     q0 = grid[int(np.argmin(cost))]
-    fine = q0 + np.arange(-cfg.coarse_step_rad * 1.5, cfg.coarse_step_rad * 1.5 + 1e-12, cfg.fine_step_rad)
+    half = cfg.coarse_step_rad * cfg.fine_span_steps
+    fine = q0 + np.arange(-half, half + 1e-12, cfg.fine_step_rad)
     cost, n_in, rms = cost_at(fine)
     k = int(np.argmin(cost))
     q_best = fine[k]

@@ -38,10 +38,9 @@ def lift_frame(
     The erosion keeps mixed depth at the part's outline out. A part seen nearly edge-on (a door
     opened past the camera's line of sight) is a sliver a few pixels wide that the erosion
     removes whole: when the eroded mask leaves fewer than ``min_points`` points, the mask is
-    lifted uneroded (the depth-edge and confidence tests still drop its mixed pixels). Measured
-    on "door" at seed 202: the last 9 frames, a door at 60-69 deg seen edge-on, lifted 0-44
-    points eroded, none enough to fit; uneroded, frames 23-24 lift 60-64 and are fitted
-    (69.6 / 70.7 deg against true 67.0 / 68.5; see ``StateRefineConfig.tail_max_se_rad``). Such
+    lifted uneroded (the depth-edge and confidence tests still drop its mixed pixels), and the
+    last frames of a door opened past the line of sight can be fitted (see
+    ``StateRefineConfig.tail_max_se_rad``; docs/accuracy.md). Such
     a sliver is too thin to show a face's plane: ``refine_joint_states`` keeps it out of the
     hinge line's plane fit.
 

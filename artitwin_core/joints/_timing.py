@@ -8,11 +8,7 @@ the part's at ``timestamps[i] + seconds``, while the twin renders and compares f
 RGB exposure, ``timestamps[i]``. ``to_rgb_clock`` moves the states to that clock by
 interpolating between the frames (a lag of half a frame shifts the state by half its change).
 
-Measured through the pipeline (registration, masks, tracks, fit, depth refit) on the benchmark's
-"door" and "drawer" scenes with a 33 ms lag added (15 fps): the door's state RMSE falls from
-1.71 to 0.10 deg, the drawer's from 6.5 to 0.56 mm; on "sensor-effects" (seven defects) from
-1.34 to 0.75 deg (``bench_pipeline_joints.py --add-effects time_offset:seconds=0.033
---rgb-time-offset 0.033`` and ``--scenes sensor-effects --rgb-time-offset 0.033``).
+What it gains through the whole pipeline is measured in docs/accuracy.md.
 """
 
 from __future__ import annotations

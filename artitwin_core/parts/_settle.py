@@ -34,7 +34,7 @@ from artitwin_core.capture import Capture
 from artitwin_core.joints import Joint, joint_transforms
 from artitwin_core.masks import MaskSequence
 from artitwin_core.parts._config import SettleConfig
-from artitwin_core.parts._types import PartFate
+from artitwin_core.parts._types import Fate, PartFate
 from artitwin_core.tracking._lift import lift_pixels, pixel_rays
 
 
@@ -144,10 +144,10 @@ def settle_parts(
     # plane, a fit to drifting tracks. It is treated below as a candidate with no joint.
     for lab in list(kept):
         c = cands[lab]
-        fit = _misfits(c, c.joint, cfg)
+        fit = _misfits(c, _joint(c), cfg)
         if fit is not None and not (fit[1] >= cfg.confirm_min_ratio * fit[0] and fit[1] - fit[0] >= cfg.confirm_min_margin_m):
             kept.remove(lab)
-            unconfirmed[lab] = (f"its depth does not confirm the {c.joint.joint_type} joint fitted to its {c.tracks} tracks "
+            unconfirmed[lab] = (f"its depth does not confirm the {_joint(c).joint_type} joint fitted to its {c.tracks} tracks "
                                 f"({1e3 * fit[0]:.0f} mm from its closed surface moved back by it, {1e3 * fit[1]:.0f} mm held still)")
     # A piece of a bigger part fitted with a joint of its own (a strip along a door's edge): merged
     # when the bigger neighbour's motion explains its depth too. One joint explains both; two would
@@ -157,11 +157,11 @@ def settle_parts(
         for k in sorted(kept, key=lambda k: -cands[k].tracks):
             if k == lab or cands[k].tracks <= c.tracks or not _adjacent(part, k, lab, cfg):
                 continue
-            fit = _misfits(c, cands[k].joint, cfg)
+            fit = _misfits(c, _joint(cands[k]), cfg)
             if fit is not None and _explains(fit, cfg):
                 kept.remove(lab)
                 decided[lab] = _fate(c, "merged", f"candidate {cands[k].index}'s motion explains its depth as well as its "
-                                     f"own {c.joint.joint_type} joint ({1e3 * fit[0]:.0f} mm from its closed surface moved "
+                                     f"own {_joint(c).joint_type} joint ({1e3 * fit[0]:.0f} mm from its closed surface moved "
                                      f"back with it, {1e3 * fit[1]:.0f} mm held still): one part, not two", into=cands[k])
                 break
     # No joint of its own: merged into the kept neighbour whose motion explains its depth, or dropped.
@@ -180,7 +180,14 @@ def relabel(part: np.ndarray, label_map: np.ndarray) -> np.ndarray:
     return lut[np.asarray(part, dtype=np.uint8)]
 
 
-def _fate(c: _Candidate, fate: str, reason: str = "", into: _Candidate | None = None) -> PartFate:
+def _joint(c: _Candidate) -> Joint:
+    """The joint of a kept candidate (only candidates with a joint are kept)."""
+    if c.joint is None:
+        raise RuntimeError(f"candidate {c.index} was kept without a joint")
+    return c.joint
+
+
+def _fate(c: _Candidate, fate: Fate, reason: str = "", into: _Candidate | None = None) -> PartFate:
     return PartFate(candidate=c.index, fate=fate, stage="settle_parts", reason=reason,
                     into=None if into is None else into.index, label=c.label)
 
@@ -266,8 +273,7 @@ def _no_joint_reason(c: _Candidate, earlier: PartFate | None) -> str:
 
 def _explain_or_drop(c: _Candidate, why: str, neighbours: list[_Candidate], cfg: SettleConfig) -> PartFate:
     """Merged into the neighbour whose motion explains ``c``'s depth, or dropped saying why."""
-    tests = [(n, _misfits(c, n.joint, cfg)) for n in neighbours]
-    tests = [(n, m) for n, m in tests if m is not None]
+    tests = [(n, m) for n in neighbours if (m := _misfits(c, _joint(n), cfg)) is not None]
     if not tests:
         where = "no kept part touches it" if not neighbours else "it is not seen both closed and moved by its neighbours"
         return _fate(c, "dropped", f"{why}; {where}, so nothing tells whether it moves")
@@ -308,12 +314,12 @@ def _misfits(c: _Candidate, joint: Joint, cfg: SettleConfig) -> tuple[float, flo
         return None
     ts = np.array([t for t, _ in frames])
     motions = joint_transforms(joint.joint_type, joint.axis, joint.pivot, np.asarray(joint.q, np.float64)[ts], joint.pitch)
-    closed, moved_by = [], []
+    closed, moved = [], []
     for (_, pts), m in zip(frames, motions, strict=True):
         back = (pts - m[:3, 3]) @ m[:3, :3]  # x = R c + t  =>  c = R^T (x - t)
         closed.append(back)
-        moved_by.append(float(np.median(np.linalg.norm(pts - back, axis=1))))
-    moved_by = np.asarray(moved_by)
+        moved.append(float(np.median(np.linalg.norm(pts - back, axis=1))))
+    moved_by = np.asarray(moved)
     ref = moved_by <= max(cfg.min_discrimination_m / 3.0, float(moved_by.min()))
     test = moved_by >= float(moved_by[ref].max()) + cfg.min_discrimination_m
     if not test.any():

@@ -65,8 +65,8 @@ class PoseRefineConfig:
             refinement is abandoned and the capture poses kept.
         num_threads: CPU threads COLMAP may use to match, triangulate and adjust. 1 (the
             default) makes the result deterministic: with more, COLMAP's threads race (RANSAC,
-            Ceres) and the same recording's poses differed by up to 2.3 cm between runs
-            (low-texture-door), at about the same run time on 2 cores.
+            Ceres) and the same recording's poses differed by centimetres between runs, at
+            about the same run time on 2 cores.
         extraction_threads: CPU threads extracting SIFT features (0 = every available core).
             Each image's features do not depend on the thread that extracts them.
     """

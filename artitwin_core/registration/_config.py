@@ -87,9 +87,8 @@ class RegistrationConfig:
             fewer than this fraction lie on its surfaces (the rest sit in space it saw empty:
             the moved part and the hand, or a wrong placement). Half: more of the overlap
             contradicting the static recording than agreeing with it. The moved parts alone
-            take a fifth to a third of the overlap on door+drawer scenes opened wide (seeds 7
-            and 8 of the generalization benchmark: 80 % and 72 % at the right placement), which
-            0.8 refused.
+            can take a fifth to a third of the overlap of a cabinet opened wide, which 0.8
+            refused.
         rival_distance_m: the rival is the best hypothesis that places the dynamic points more
             than this RMS distance (metres) from the best one: another reading of the scene, not
             the best one slid a little along a wall.
@@ -104,8 +103,8 @@ class RegistrationConfig:
             texture pins the slide, and the texture test checks the result.
         min_colour_agreement: refuse when, at the final placement, the texture on the matched
             surfaces agrees less than this (``HypothesisScore.colour_agreement``, a correlation:
-            about 0 for unrelated textures, 0.4-0.9 for the right placement on the benchmark
-            scenes): the geometry matched surfaces of the same shape but not the same ones (a
+            about 0 for unrelated textures, 0.4-0.9 for the right placement): the geometry
+            matched surfaces of the same shape but not the same ones (a
             corner the static sweep never saw laid onto another corner of the room).
         min_colour_contrast: the texture test is made only when the static surfaces' texture
             varies by at least this much RMS about each surface's mean (intensity, 0-1): on

@@ -200,7 +200,7 @@ class _Clouds:
         self.base_d = fused_cloud(dynamic, range(dynamic.num_frames), voxel_m=self.finest, keep_fraction=keep, **self.common)
         # Normals from neighbourhoods wide enough for the depth noise: a plane fitted within 3 voxels
         # of a surface whose noise is comparable tilts with the noise, and point-to-plane ICP then
-        # slides (high-noise, sigma ~15 mm: 15 mm off at the furniture with 3 cm neighbourhoods).
+        # slides (a centimetre off at the furniture at high depth noise with 3 cm neighbourhoods).
         self.noise = _surface_noise_m(self.base_s, self.finest) if cfg.normal_noise_radii > 0 else 0.0
 
     def at(self, voxel: float):
@@ -533,10 +533,8 @@ def _block_jackknife(dynamic_cloud, static_cloud, transform: np.ndarray, voxel: 
     """``[6, 6]`` covariance of the registration error ``(w, v)`` (see ``RegistrationResult``):
     the dynamic cloud is cut into ``blocks`` spatial clusters (k-means on the registered points),
     each left out in turn and the finest point-to-plane ICP rerun from ``transform``; the
-    jackknife variance of the leave-one-out corrections. Measured against the truth on the
-    benchmark scenes (rotation deg / mm at the door): tiny 0.24 / 1.4 against 0.31 / 6.3, door
-    0.041 / 0.85 against 0.026 / 0.54, drawer 0.042 / 1.4 against 0.047 / 1.2, high-noise
-    0.100 / 0.95 against 0.114 / 2.7. None when a block is too small to leave out."""
+    jackknife variance of the leave-one-out corrections, within a factor of a few of the true
+    error (docs/accuracy.md). None when a block is too small to leave out."""
     pts = np.asarray(dynamic_cloud.points) @ transform[:3, :3].T + transform[:3, 3]
     if len(pts) < 50 * blocks:
         return None

@@ -24,11 +24,18 @@ from artitwin_core.synth._generate import (
     static_shift_for_overlap,
 )
 from artitwin_core.synth._io import load_ground_truth, load_scene_spec, write_scene
+from artitwin_core.synth._motion import look_at
 from artitwin_core.synth._random import random_scene_spec
+from artitwin_core.synth._render import WorldState, render_view
+from artitwin_core.synth._sensor import srgb_to_linear
 from artitwin_core.synth._spec import BENCHMARK_SCENES, SceneSpec
 from artitwin_core.synth._types import SceneGroundTruth
 
 __all__ = [
+    "srgb_to_linear",
+    "render_view",
+    "WorldState",
+    "look_at",
     "BENCHMARK_SCENES",
     "EFFECTS",
     "Effect",

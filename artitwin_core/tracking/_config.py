@@ -16,8 +16,8 @@ class TrackingConfig:
             times mask score reaches this fraction of the best frame's. Earlier frames are
             preferred because recordings start with the part closed, the frame ``estimate_joint``
             takes as reference, and a closed drawer's outline (flush with the cabinet) pins the
-            dense warp best. Measured on the "drawer" / "low-noise" scenes: 3D p90 4.2 / 2.5 mm
-            at 0.6 against 9.6 / 12.5 mm at 1.0 (largest area, the open drawer).
+            dense warp best: 0.6 tracked drawers two to five times closer than 1.0 (largest
+            area, the open drawer; docs/accuracy.md).
         max_points: query points sampled in the query frame (fewer on small or untextured parts).
         min_distance_px: least spacing between query points; ``None`` = ``max(2, W / 128)``.
         erode_px: the part mask is eroded by this before sampling (keeps query points off its
@@ -65,8 +65,8 @@ class TrackingConfig:
             Gauss-Newton over its 6-DOF motion) to every frame (``_model_track``). Planar mode
             then restarts the dense warp from the model's homography where the chained LK loses
             a fast-moving face, and frames the 2D tracker did not reach get the query points
-            moved by the model's motion. Measured on "tiny" (door swinging 0.3 rad per frame):
-            tracks reach true q 1.06 rad instead of 0.22.
+            moved by the model's motion: tracks of a fast-swinging door reach its full opening
+            instead of a fifth of it.
         model_points: most surface points in that model (a random subset beyond).
         patch_px: the model tracker's appearance test correlates grey levels in square patches
             of the query image this many pixels wide, each normalised on its own, so that a

@@ -375,8 +375,8 @@ def _track_planar(gray, allowed, align_allowed, query_frame, pts_q, params, alig
     direction's tracking: every later frame would be predicted from an unverified warp.
 
     The template stays the query frame: replacing it by a later frame (a keyframe) when the
-    face's image area changed by 1.5x made the closing drawer of "low-noise" drift (3D median
-    8.4 mm against 1.6 mm without) and did not extend the door's coverage.
+    face's image area changed by 1.5x made a closing drawer drift several times farther and
+    did not extend a door's coverage.
     """
     t_count, height, width = gray.shape
     h_cur, h_old = np.eye(3), None

@@ -1,9 +1,9 @@
 """Per-frame corrections of a recording's poses, measured on its own static background.
 
 Recorded poses (ARKit's visual-inertial odometry) jitter from frame to frame by millimetres and
-milliradians. A part's tracks are lifted with those poses, so the jitter lands on the joint: on
-"high-noise" (3 mm / 3 mrad per frame) the door's pivot line came out 6-8.5 mm off at three
-draws, where the same tracks lifted at the true poses gave 0.2-1.5 mm.
+milliradians. A part's tracks are lifted with those poses, so the jitter lands on the joint: at
+3 mm / 3 mrad per frame a door's pivot line comes out several times farther off than with the
+true poses (docs/accuracy.md).
 
 Everything outside the parts and the hand is static, so any motion of it between two frames'
 lifted depth is pose error. Keyframes every ``keyframe_step`` frames are models (their static
@@ -20,14 +20,13 @@ What to apply is decided by three tests, since the grey levels also move with th
 not pose error:
 - The measurements' scatter about the solution gives the corrections' standard errors. Their
   frame-to-frame part (the corrections less a straight line in time over ``slow_frames``) must
-  stand out from them (``min_chi2_per_dof``): chi^2 per degree of freedom 110-480 with the
-  benchmark's 3 mm / 3 mrad jitter, 1.3-5.6 on exact poses, with or without sensor defects.
+  stand out from them (``min_chi2_per_dof``): real jitter stands out by two orders of
+  magnitude more than exact poses do, with or without sensor defects.
 - A slow error is left alone: an undeclared lens, a depth bias, vignetting or a rolling shutter
   "correct" exact poses by 2-3 mm, smoothly along the camera path, and drift has its own effect
   (``pose_drift``). Only corrections that change from frame to frame as much as white noise
-  does (``min_whiteness``) are applied whole; otherwise only their frame-to-frame part (jitter
-  with a 3 % depth bias and an undeclared lens: 3.9 -> 0.9 mm whole-frame error, where applying
-  everything gave 5.0).
+  does (``min_whiteness``) are applied whole; otherwise only their frame-to-frame part (with a
+  depth bias and an undeclared lens as well, applying everything made the error larger).
 - Depth must agree (``min_depth_agreement``). Depth and pose are sampled together, so a real
   pose error misaligns depth as it does the grey levels; an RGB image exposed 33 ms before its
   depth and pose shows the camera's shake as frame-to-frame "jitter" that depth disagrees with

@@ -118,13 +118,11 @@ class _Frame:
 
     ``occluders [H, W]`` bool (or None): pixels of things that move on their own (the hand,
     the other parts), left out of the blur. A plain blur mixes into the part's grey levels
-    whatever lies beside it: on "large-session-offset" the door swinging in front of the drawer
-    covered all but a strip of its front, and the blurred door pulled the coarse levels'
-    alignment 20-150 mm down the drawer's vertical grain, where the sharp level has nothing to
-    pull it back (the drawer's tracks came out 120-150 mm low, its axis 27 deg off). The static
-    scene around the part stays in the blur: its contrast with the part's outline pins the part
-    along its grain (leaving out everything but the part's mask set "door+drawer"'s open drawer
-    2 mm low).
+    whatever lies beside it: a door swinging in front of a drawer pulled the coarse levels'
+    alignment down the drawer's grain, where the sharp level has nothing to pull it back
+    (docs/accuracy.md). The static scene around the part stays in the blur: its contrast with
+    the part's outline pins the part along its grain (leaving out everything but the part's
+    mask set an open drawer low).
     """
 
     def __init__(self, gray, depth, allowed, pose, k_rgb, k_depth, sigmas, occluders=None):
@@ -269,10 +267,9 @@ def _appearance(
 
     A plane's depth cannot tell a door from the same door slid or turned within its plane (a
     180 degree flip about its normal fits depth perfectly): only appearance can. Patches make
-    the score blind to illumination that differs across the part: on "large-session-offset"
-    the open door's shadow fell across half the drawer's front, and the whole front's
-    correlation at the true pose dropped from 0.99 to 0.26-0.49 (under ``min_ncc``), so no
-    frame of the drawer's slide was trusted.
+    the score blind to illumination that differs across the part: an open door's shadow across
+    half a drawer's front dropped the whole front's correlation at the true pose under
+    ``min_ncc``, so no frame of the drawer's slide was trusted.
     """
     if ok.sum() < min_points:
         return -1.0
@@ -308,20 +305,16 @@ class RigidParams:
     min_inlier_fraction: float = 0.5
     max_model_points: int = 3000
     min_ncc: float = 0.5
-    # Grey-level spread (levels) below which appearance is not checked: measured 7.5 on the
-    # "low-texture-door" (its correlation at the true pose is too weak to vouch for anything),
-    # 15.6-22.1 on the other benchmark parts.
+    # Grey-level spread (levels) below which appearance is not checked: a weakly textured
+    # part's correlation at the true pose is too weak to vouch for anything (docs/accuracy.md).
     texture_floor: float = 10.0
     # Appearance is correlated in patches of the query image this many pixels wide, each
     # normalised on its own (``_appearance``).
     patch_px: float = 16.0
     min_patch_points: int = 8
     # Least share of the frame's part (its mask's points with depth) that a trusted alignment
-    # explains (``_explained``). Measured at alignments within 1 cm of the truth: >= 0.66 with
-    # true masks (9 benchmark scenes), >= 0.75 with the pipeline's (door+drawer,
-    # large-session-offset, non-ideal-joints); the drawer of "non-ideal-joints", slid 12-19 cm
-    # down its grain while the door swung in front of it, 0.29-0.51 (the model's points that
-    # left the mask counted for nothing).
+    # explains (``_explained``): alignments within 1 cm of the truth explain more, wrong ones
+    # less, apart from a part half hidden by another that swings in front (docs/accuracy.md).
     min_explained: float = 0.6
     reacquire_scales: tuple[float, ...] = (0.5, 0.75, 1.25, 1.5, 2.0, 2.5, 3.0)
     max_gap_steps: int = 8

@@ -203,7 +203,7 @@ def _fill_from_model(res, q, points_q, pix, points, valid, allowed, lift, captur
     occluded or off the surface). Such a sample replaces the 2D track's: the model is aligned to
     each frame directly, while the 2D chain accumulates drift from frame to frame (a drawer's
     tracks crept 1 px up as it slid out, 5-7 mm at 0.25 m, and tilted its axis 1.2 deg; 0.08
-    with the model's samples; a door's 1.3 -> 0.1 deg on "tiny"). A 2D track that disagrees
+    with the model's samples). A 2D track that disagrees
     with the model by more than the gate and has no model sample is dropped.
     """
     t_count = pix.shape[0]
@@ -344,7 +344,7 @@ def track_part_points(
         def occluders(t: int) -> np.ndarray:
             # As labelled, without the hand's tracking margin: the margin covers the part's own
             # pixels around the hand (a drawer's handle), whose contrast pins the part (with it,
-            # "door+drawer"'s open drawer sat 2 mm low).
+            # an open drawer sat low).
             return others[t] if hand is None else others[t] | hand[t]
 
         model = track_rigid(

@@ -7,9 +7,9 @@ import numpy as np
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
+from artitwin_core.capture import Capture
 from artitwin_core.capture._lzfse import declared_raw_size
 from artitwin_core.capture._record3d_meta import build_metadata, parse_metadata
-from artitwin_core.capture._types import Capture
 from artitwin_core.geometry import axis_angle_to_matrix, make_se3
 
 unit = st.floats(-1, 1, allow_nan=False)

@@ -14,8 +14,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from artitwin_core.change import build_canonical_tsdf, segment_parts
-from artitwin_core.change._label import fill_depth_by_colour
+from artitwin_core.change import build_canonical_tsdf, fill_depth_by_colour, segment_parts
 from artitwin_core.synth import BENCHMARK_SCENES, generate_scene
 
 WOOD, SKIN, BLUE = (150, 100, 50), (230, 180, 160), (40, 40, 200)

@@ -5,8 +5,7 @@ import numpy as np
 import pytest
 
 from artitwin_core import InputError
-from artitwin_core.change import mask_overlay, summarize_masks
-from artitwin_core.change._report import HAND_COLOUR, PART_COLOURS
+from artitwin_core.change import HAND_COLOUR, PART_COLOURS, mask_overlay, summarize_masks
 from artitwin_core.masks import MaskSequence
 
 

@@ -22,10 +22,10 @@ from artitwin_core.export import (
     check_usd,
     export_usd,
     mesh_inertial,
+    parse_physics,
     read_usd_joints,
     validate_usd,
 )
-from artitwin_core.export._usdcheck import parse_physics
 from artitwin_core.gaussians import GaussianParams
 from artitwin_core.geometry import quat_wxyz_to_matrix
 from tests.export.test_simulators import BASE, DENSITY, PARTS, _box, _joint

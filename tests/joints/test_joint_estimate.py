@@ -306,9 +306,9 @@ def test_revolute_state_is_wrapped_against_the_reference():
     """The alternation may leave the reference frame's angle near +pi and an opened frame's near
     -pi (the same door, turned a little): q must come out as the small turn, not ~2 pi. Seen on
     door+drawer as a 356 deg range before the wrap."""
+    from artitwin_core.joints import joint_motion
     from artitwin_core.joints._finalize import _finalize
     from artitwin_core.joints._fit import _Fit
-    from artitwin_core.joints._model import joint_motion
 
     rng = np.random.default_rng(0)
     axis, pivot = np.array([0.0, 1.0, 0.0]), np.array([0.4, 0.45, 0.0])

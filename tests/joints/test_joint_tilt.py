@@ -126,7 +126,7 @@ def test_doors_stay_revolute(q_max, patch):
 def test_ransac_without_any_inlier_returns_a_motion():
     """Three tracks that are not rigid at all (a frame where the tracker lost the drawer, seen on
     non-ideal-joints): no sample has an inlier, RANSAC must still end (it raised OverflowError)."""
-    from artitwin_core.joints._rigid import ransac_rigid
+    from artitwin_core.joints import ransac_rigid
 
     src = np.array([[0.0, 0.0, 0.0], [0.1, 0.0, 0.0], [0.0, 0.1, 0.0]])
     dst = np.array([[0.0, 0.0, 0.0], [0.5, 0.0, 0.0], [0.0, 0.02, 0.3]])

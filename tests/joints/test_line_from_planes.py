@@ -15,8 +15,13 @@ from dataclasses import replace
 import numpy as np
 import pytest
 
-from artitwin_core.joints import Joint, StateRefineConfig, joint_errors, refine_joint_states
-from artitwin_core.joints._depth_fit import fit_line_from_planes
+from artitwin_core.joints import (
+    Joint,
+    StateRefineConfig,
+    fit_line_from_planes,
+    joint_errors,
+    refine_joint_states,
+)
 from artitwin_core.joints._model import rotations_about
 from artitwin_core.masks import MaskSequence
 from artitwin_core.synth import BENCHMARK_SCENES, generate_scene

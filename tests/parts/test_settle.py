@@ -12,7 +12,7 @@ import pytest
 from artitwin_core.masks import MaskSequence
 from artitwin_core.parts import PartFate, relabel, settle_parts
 from artitwin_core.synth import BENCHMARK_SCENES, generate_scene
-from artitwin_core.tracking._lift import lift_pixels
+from artitwin_core.tracking import lift_pixels
 
 
 @pytest.fixture(scope="module")

@@ -9,8 +9,7 @@ import pytest
 
 from artitwin_core.capture import Capture
 from artitwin_core.registration import fused_cloud
-from artitwin_core.synth import SceneSpec, generate_scene, render_state
-from artitwin_core.synth._motion import look_at
+from artitwin_core.synth import SceneSpec, generate_scene, look_at, render_state
 
 # 192x144 RGB / 96x72 depth: at the "tiny" benchmark scene's 64x48 depth (4 cm between pixels
 # at 2 m) the cabinet's sides are too few points to pin the translation along the cabinet's

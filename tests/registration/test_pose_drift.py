@@ -9,8 +9,12 @@ import numpy as np
 import pytest
 
 from artitwin_core import InputError
-from artitwin_core.capture import DepthCalibrationConfig, PoseDrift, estimate_depth_calibration
-from artitwin_core.capture._drift import drift_significance
+from artitwin_core.capture import (
+    DepthCalibrationConfig,
+    PoseDrift,
+    drift_significance,
+    estimate_depth_calibration,
+)
 from artitwin_core.change import PartConfig, build_canonical_tsdf, segment_parts
 from artitwin_core.geometry import axis_angle_to_matrix, make_se3
 from artitwin_core.registration import RegistrationConfig, estimate_session_drift, register_recordings

@@ -7,8 +7,7 @@ import numpy as np
 import pytest
 
 from artitwin_core.geometry import invert_se3
-from artitwin_core.synth import EFFECTS
-from artitwin_core.synth._sensor import srgb_to_linear
+from artitwin_core.synth import EFFECTS, srgb_to_linear
 
 BASE = {"noise_level": 0.0, "static_frames": 5, "dynamic_frames": 6}
 

@@ -9,10 +9,9 @@ from hypothesis import strategies as st
 
 from artitwin_core import InputError
 from artitwin_core.geometry import axis_angle_to_matrix, check_rigid, invert_se3, make_se3
-from artitwin_core.synth import SceneSpec, generate_scene, render_state
+from artitwin_core.synth import SceneSpec, WorldState, generate_scene, render_state
 from artitwin_core.synth._generate import scene_model
 from artitwin_core.synth._motion import session_transform
-from artitwin_core.synth._render import WorldState
 
 # Ray casting is float32: a hit at 1-4 m is placed within ~1e-6 relative; 1e-4 m leaves 25x room.
 EXACT_M = 1e-4

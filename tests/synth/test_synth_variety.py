@@ -15,11 +15,17 @@ import pytest
 
 from artitwin_core import InputError
 from artitwin_core.geometry import invert_se3, make_se3
-from artitwin_core.synth import BENCHMARK_SCENES, SceneSpec, generate_scene, random_scene_spec
+from artitwin_core.synth import (
+    BENCHMARK_SCENES,
+    SceneSpec,
+    WorldState,
+    generate_scene,
+    random_scene_spec,
+    render_view,
+)
 from artitwin_core.synth._generate import scene_model
 from artitwin_core.synth._motion import camera_path
 from artitwin_core.synth._overlap import overlap_fraction
-from artitwin_core.synth._render import WorldState, render_view
 
 TINY = BENCHMARK_SCENES["tiny"]
 
@@ -271,7 +277,7 @@ def test_overlap_fraction_counts_the_points_a_static_frame_saw(clean):
     h, w = clean.spec.depth_size[::-1]
     # Use the dynamic recording's own clean depth as both: back-projection and projection agree.
     model = scene_model(clean.spec)
-    from artitwin_core.synth._render import render_view
+    from artitwin_core.synth import render_view
 
     k = clean.dynamic.depth_intrinsics[0]
     state = WorldState(model, [0.0])

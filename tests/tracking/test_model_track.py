@@ -11,8 +11,8 @@ import numpy as np
 import pytest
 
 from artitwin_core.synth import BENCHMARK_SCENES, generate_scene
+from artitwin_core.tracking import lift_pixels
 from artitwin_core.tracking._flow import to_gray
-from artitwin_core.tracking._lift import lift_pixels
 from artitwin_core.tracking._model_track import (
     RigidParams,
     _align_levels,
