@@ -40,7 +40,7 @@ from artitwin_core.gaussians import (
     rasterize,
 )
 from artitwin_core.gaussians._sh import SH_C0
-from artitwin_core.geometry import pixel_rays
+from artitwin_core.geometry import pixel_rays, unique_rows
 from artitwin_core.joints import Joint
 from artitwin_core.reconstruction import TrainViews
 from artitwin_core.reconstruction._losses import depth_l1, photometric_loss, psnr
@@ -377,8 +377,7 @@ def _empty_params() -> GaussianParams:
 def _voxel_merge(points: np.ndarray, colours: np.ndarray, labels: np.ndarray, voxel: float):
     """Mean point and colour per (label, voxel)."""
     keys = np.concatenate([labels[:, None].astype(np.int64), np.floor(points / voxel).astype(np.int64)], 1)
-    uniq, inv = np.unique(keys, axis=0, return_inverse=True)
-    inv = inv.ravel()
+    uniq, inv, _ = unique_rows(keys)
     cnt = np.bincount(inv, minlength=len(uniq)).astype(np.float64)
     p = np.stack([np.bincount(inv, points[:, i], len(uniq)) for i in range(3)], 1) / cnt[:, None]
     c = np.stack([np.bincount(inv, colours[:, i], len(uniq)) for i in range(3)], 1) / cnt[:, None]

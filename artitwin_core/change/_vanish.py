@@ -17,6 +17,7 @@ from scipy.spatial import cKDTree
 from artitwin_core.change._config import PartConfig
 from artitwin_core.change._detect import depth_tolerance
 from artitwin_core.change._views import FrameView, _to_world
+from artitwin_core.geometry import unique_rows
 
 
 def find_moved_parts(views: list[FrameView], config: PartConfig | None = None) -> list[tuple[np.ndarray, int]]:
@@ -63,8 +64,8 @@ def _changed_surfaces(views: list[FrameView], cfg: PartConfig, nearer: bool) -> 
     frames_all = np.concatenate(frames)
     points_all = np.concatenate(points)
     # Count distinct frames per voxel.
-    pairs = np.unique(np.concatenate([keys_all, frames_all[:, None]], 1), axis=0)
-    vkeys, inv_pairs, counts = np.unique(pairs[:, :3], axis=0, return_inverse=True, return_counts=True)
+    pairs = unique_rows(np.concatenate([keys_all, frames_all[:, None]], 1))[0]
+    vkeys, inv_pairs, counts = unique_rows(pairs[:, :3])
     good = counts >= (cfg.min_occluded_frames if nearer else cfg.min_vanish_frames)
     if good.sum() < cfg.min_part_voxels:
         return []

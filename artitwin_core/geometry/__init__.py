@@ -25,6 +25,7 @@ from artitwin_core.geometry._se3 import (
     transform_points,
 )
 from artitwin_core.geometry._trajectory import interpolate_poses
+from artitwin_core.geometry._voxels import unique_rows
 
 __all__ = [
     "OPENGL_FROM_OPENCV",
@@ -42,4 +43,5 @@ __all__ = [
     "quat_wxyz_to_matrix",
     "raster_intrinsics",
     "transform_points",
+    "unique_rows",
 ]

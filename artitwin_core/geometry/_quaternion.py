@@ -13,6 +13,8 @@ pose files check the norm themselves, where they can name the file and frame.
 from __future__ import annotations
 
 import sys
+from collections.abc import Callable
+from typing import Any
 
 import numpy as np
 
@@ -34,14 +36,14 @@ def quat_wxyz_to_matrix(q):
         import torch
 
         q = q / q.norm(dim=-1, keepdim=True).clamp_min(_ZERO_NORM)
-        w, x, y, z = q.unbind(-1)
-        stack = torch.stack
-    else:
-        q = np.asarray(q, dtype=np.float64)
-        norm = np.linalg.norm(q, axis=-1, keepdims=True)
-        q = q / np.maximum(norm, _ZERO_NORM)
-        w, x, y, z = np.moveaxis(q, -1, 0)
-        stack = np.stack
+        return _matrix_of(torch.stack, *q.unbind(-1))
+    q = np.asarray(q, dtype=np.float64)
+    q = q / np.maximum(np.linalg.norm(q, axis=-1, keepdims=True), _ZERO_NORM)
+    return _matrix_of(np.stack, *np.moveaxis(q, -1, 0))
+
+
+def _matrix_of(stack: Callable[..., Any], w: Any, x: Any, y: Any, z: Any) -> Any:
+    """The rotation matrix of a unit quaternion's components, built with ``stack`` (numpy's or torch's)."""
     return stack(
         [
             stack([1 - 2 * (y * y + z * z), 2 * (x * y - w * z), 2 * (x * z + w * y)], -1),

@@ -14,6 +14,7 @@ import numpy as np
 from scipy.spatial import cKDTree
 
 from artitwin_core.capture import Capture
+from artitwin_core.geometry import unique_rows
 from artitwin_core.joints._config import StateRefineConfig
 from artitwin_core.joints._model import joint_motion
 from artitwin_core.joints._types import Joint
@@ -47,7 +48,7 @@ def lift_frame(
     Normals come from a denser lift (``normal_oversample`` times the points kept): from the
     kept subsample alone, a door mostly out of view or cut by a hand gives too few neighbours."""
     part = (masks.part[t] == label).astype(np.uint8)
-    hand = np.asarray(masks.hand[t]).astype(np.uint8)
+    hand: np.ndarray = np.asarray(masks.hand[t]).astype(np.uint8)
     grow = int(np.ceil(cfg.hand_dilate_depth_px * hand.shape[1] / np.asarray(capture.depth[t]).shape[1]))
     if grow > 0 and hand.any():
         k = 2 * grow + 1
@@ -124,8 +125,7 @@ def build_model(points: np.ndarray, views: np.ndarray, cfg: StateRefineConfig) -
     if points.shape[0] < cfg.normal_neighbours:
         return None
     keys = np.floor(points / cfg.voxel_m).astype(np.int64)
-    _, inv, counts = np.unique(keys, axis=0, return_inverse=True, return_counts=True)
-    inv = inv.reshape(-1)
+    _, inv, counts = unique_rows(keys)
     merged = np.zeros((counts.size, 3))
     np.add.at(merged, inv, points)
     merged /= counts[:, None]

@@ -18,7 +18,7 @@ from artitwin_core._errors import InputError
 from artitwin_core.capture import Capture
 from artitwin_core.gaussians import LABEL_BACKGROUND, GaussianParams
 from artitwin_core.gaussians._sh import SH_C0
-from artitwin_core.geometry import pixel_rays
+from artitwin_core.geometry import pixel_rays, unique_rows
 from artitwin_core.reconstruction._config import InitConfig
 
 
@@ -100,8 +100,7 @@ def voxel_downsample(
         points ``[V, 3]``, colours ``[V, 3]``, total weight ``[V]`` of each voxel.
     """
     keys = np.floor(points / voxel_m).astype(np.int64)
-    _, inverse = np.unique(keys, axis=0, return_inverse=True)
-    inverse = inverse.ravel()
+    _, inverse, _ = unique_rows(keys)
     n = int(inverse.max()) + 1
     wsum = np.bincount(inverse, weights=weights, minlength=n)
     p = np.stack([np.bincount(inverse, weights=weights * points[:, k], minlength=n) for k in range(3)], 1)

@@ -39,7 +39,7 @@ import numpy as np
 from scipy.spatial import cKDTree
 from scipy.spatial.transform import Rotation
 
-from artitwin_core.geometry import backproject
+from artitwin_core.geometry import backproject, unique_rows
 from artitwin_core.tracking._lift import lift_pixels
 
 
@@ -252,7 +252,7 @@ def _patches(u: np.ndarray, v: np.ndarray, size_px: float) -> np.ndarray:
     """``[M]`` int: the square of side ``size_px`` of the query image's pixel grid that holds each
     model point (its query-frame pixel ``(u [M], v [M])``)."""
     keys = np.stack([np.floor(u / size_px), np.floor(v / size_px)], -1).astype(np.int64)
-    return np.unique(keys, axis=0, return_inverse=True)[1].reshape(-1)
+    return unique_rows(keys)[1]
 
 
 def _appearance(
