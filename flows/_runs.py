@@ -36,27 +36,78 @@ def read_summary(path: str | Path) -> tuple[Path, dict[str, Any]]:
 DIAGNOSIS_STAGES = ("diagnose", "diagnose_static", "diagnose_dynamic")
 
 
-def rerun_effects(report: DiagnosisReport, modelled: list[str]) -> tuple[list[str], list[str]]:
-    """The ``--effect`` values that model what the diagnosis ``report`` enabled, beside those the
-    run already ``modelled`` (``PipelineConfig.enabled_effects``), and the enabled effects no stage
-    models. An effect that takes a value gets the one the diagnosis fitted (``time_offset=0.033``)."""
-    from schemas._configs import EFFECT_STAGES, EFFECT_VALUES
+def _canonical(entry: str) -> str:
+    """An ``--effect`` entry without its value, with its scope where the effect has a model per
+    recording (a bare one gets the default scope): what two entries are compared by."""
+    from schemas._configs import DEFAULT_SCOPES, PER_RECORDING_EFFECTS, split_effect
 
-    wanted = sorted({e.split("/", 1)[-1] for e in report.enabled})
-    have = {m.split("=", 1)[0] for m in modelled}
-    flags = []
-    for name in wanted:
-        if name not in EFFECT_STAGES or name in have:
+    scope, name, _ = split_effect(entry)
+    if name in PER_RECORDING_EFFECTS:
+        return f"{scope or DEFAULT_SCOPES[name]}:{name}"
+    return name
+
+
+def rerun_effects(report: DiagnosisReport, modelled: list[str]) -> tuple[list[str], list[str]]:
+    """The ``--effect`` values that model what the diagnosis ``report`` enabled, each in the scope
+    it was found in (``dynamic:exposure_white_balance``, ``joint_0:screw_joint``), beside those the
+    run already ``modelled`` (``PipelineConfig.enabled_effects``); and the enabled effects no stage
+    models there, with their scope. An effect that takes a value gets the one the diagnosis fitted
+    (``time_offset=0.033``)."""
+    from schemas._configs import EFFECT_SCOPES, EFFECT_STAGES, EFFECT_VALUES, effect_scope
+
+    have = {_canonical(m) for m in modelled}
+    flags, cannot = [], []
+    for entry in dict.fromkeys(report.enabled):
+        scope, _, name = entry.rpartition("/")
+        try:
+            short = effect_scope(scope) if scope else None
+        except ValueError:
+            short = None
+        kind = "joint" if short and short.startswith("joint_") else short
+        if name not in EFFECT_STAGES:
+            cannot.append(name if not scope else f"{name} ({scope})")
+            continue
+        if short is None or kind not in EFFECT_SCOPES[name]:
+            where = " or ".join(EFFECT_SCOPES[name])
+            cannot.append(f"{name} ({scope}: modelled only in the {where} scope)")
+            continue
+        flag = f"{short}:{name}"
+        if _canonical(flag) in have:
             continue
         if name in EFFECT_VALUES:
             param = EFFECT_VALUES[name][0]
             fitted = [f.params[param] for f in report.findings if f.name == name and param in f.params]
             if not fitted:
                 continue
-            name = f"{name}={float(fitted[0]):.4g}"
-        flags.append(name)
-    cannot = [e for e in wanted if e not in EFFECT_STAGES]
-    return flags, cannot
+            flag = f"{flag}={float(fitted[0]):.4g}"
+        flags.append(flag)
+    return sorted(dict.fromkeys(flags)), sorted(dict.fromkeys(cannot))
+
+
+def rank_findings(findings: list) -> list:
+    """Every scope's findings in one ranking: enabled first, then significant, then by the share
+    of their target's residual they explain (a scope's own order breaks ties)."""
+    order = {id(f): i for i, f in enumerate(findings)}
+    return sorted(findings, key=lambda f: (not f.enabled, not f.significant, -f.explained_frac, order[id(f)]))
+
+
+def scope_bare_effects(names: list[str], report: DiagnosisReport | None) -> list[str]:
+    """``--effect`` entries with each bare per-recording name (``exposure_white_balance``) put in
+    the scope(s) the diagnosis ``report`` found it in (enabled there); a name the diagnosis did
+    not enable anywhere, or with no diagnosis at all, keeps its default scope (the static recording)."""
+    from schemas._configs import PER_RECORDING_EFFECTS, effect_scope, split_effect
+
+    out = []
+    for entry in names:
+        scope, name, _ = split_effect(entry)
+        found = []
+        if scope is None and name in PER_RECORDING_EFFECTS and report is not None:
+            for e in report.enabled:
+                where, _, n = e.rpartition("/")
+                if n == name and where in ("static recording", "dynamic recording"):
+                    found.append(f"{effect_scope(where)}:{entry}")
+        out += found or [entry]
+    return out
 
 
 def diagnosis_of(summary: dict[str, Any], where: Path) -> DiagnosisReport | None:

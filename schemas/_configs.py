@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import re
+
 from pydantic import Field, model_validator
 
 from schemas._articulate import ArticulateConfig
@@ -302,6 +304,54 @@ EFFECT_STAGES: dict[str, str] = {
 EFFECT_VALUES: dict[str, tuple[str, str]] = {
     "time_offset": ("seconds", "rgb_time_offset_s"),
 }
+# Where each effect above can be modelled: ``SCOPE:NAME`` in ``with_effects``. "static" and
+# "dynamic" are the two recordings (the diagnosis's "static recording", "dynamic recording");
+# "joint" stands for a joint's scope (joint_0, joint_1, ...). The camera effects have a model per
+# recording (the static one in reconstruct, the dynamic one in articulate); the depth error is
+# calibrated from the static recording and corrects both; the pose drift and lag switches model
+# both recordings; the screw model is switched on for every rotating joint.
+EFFECT_SCOPES: dict[str, tuple[str, ...]] = {
+    "exposure_white_balance": ("static", "dynamic"),
+    "vignetting": ("static", "dynamic"),
+    "depth_scale_offset": ("static",),
+    "screw_joint": ("joint",),
+    "pose_drift": ("static", "dynamic"),
+    "pose_lag": ("static", "dynamic"),
+    "time_offset": ("dynamic",),
+}
+# Effects whose model differs by recording: ``enabled_effects`` names them with their scope.
+PER_RECORDING_EFFECTS = ("exposure_white_balance", "vignetting")
+# A bare name with no diagnosis to say where it was found: where it was modelled before effects had scopes.
+DEFAULT_SCOPES: dict[str, str] = {n: s[0] for n, s in EFFECT_SCOPES.items()}
+RECORDING_SCOPES = {"static recording": "static", "dynamic recording": "dynamic"}
+
+
+def effect_scope(scope: str) -> str:
+    """The ``--effect`` scope of a diagnosis scope or a short one (``"dynamic recording"`` ->
+    ``"dynamic"``, ``"joint_0"`` stays); ``ValueError`` naming the valid scopes."""
+    s = RECORDING_SCOPES.get(scope, scope)
+    if s in ("static", "dynamic") or re.fullmatch(r"joint_\d+", s):
+        return s
+    raise ValueError(
+        f"unknown scope {scope!r}; give static, dynamic or a joint (joint_0, joint_1, ...), "
+        "as `artitwin diagnose` names them"
+    )
+
+
+def split_effect(entry: str) -> tuple[str | None, str, str | None]:
+    """``(scope or None, name, value or None)`` of an ``--effect`` entry ``[SCOPE:]NAME[=VALUE]``;
+    the scope is checked (``effect_scope``) and must be one the effect can be modelled in."""
+    head, sep, raw = str(entry).partition("=")
+    scope, colon, name = head.rpartition(":")
+    if not colon:
+        return None, name, raw if sep else None
+    short = effect_scope(scope)
+    kind = "joint" if short.startswith("joint_") else short
+    valid = EFFECT_SCOPES.get(name)
+    if valid is not None and kind not in valid:
+        where = ", ".join("a joint (joint_0, ...)" if v == "joint" else v for v in valid)
+        raise ValueError(f"{entry!r}: {name} can be modelled in {where}, not in {scope}")
+    return short, name, raw if sep else None
 
 
 class FramePosesConfig(StageConfig):
@@ -387,17 +437,22 @@ class PipelineConfig(StageConfig):
 
     def with_effects(self, names) -> PipelineConfig:
         """This config with the physical effects ``names`` (from the diagnosis catalog) enabled in
-        the stages that model them (``EFFECT_STAGES``). Only those stages' configs change, so a rerun
+        the stages that model them (``EFFECT_STAGES``), each ``[SCOPE:]NAME[=VALUE]``: the scope
+        (``EFFECT_SCOPES``) says where: ``dynamic:exposure_white_balance`` models the dynamic
+        recording's exposure in articulate, ``static:vignetting`` the static one's in reconstruct;
+        a bare name takes ``DEFAULT_SCOPES`` (callers that have a diagnosis resolve it first,
+        ``flows._runs.scope_bare_effects``). Only those stages' configs change, so a rerun
         reuses every cached artifact upstream of them. An effect the stage cannot fit itself takes
         the value the diagnosis fitted as ``NAME=VALUE`` (``EFFECT_VALUES``: ``time_offset=0.033``).
         ``ValueError`` names an effect no stage models, or a value that is missing or not a number."""
         values: dict[str, float] = {}
         plain = []
+        scoped: dict[str, set[str]] = {}  # per-recording effect -> recordings
         for entry in names:
-            name, sep, raw = str(entry).partition("=")
+            scope, name, raw = split_effect(str(entry))
             if name in EFFECT_VALUES:
                 param = EFFECT_VALUES[name][0]
-                if not sep:
+                if raw is None:
                     raise ValueError(
                         f"the effect {name} needs its {param}, as the diagnosis reports it: {name}=VALUE "
                         f"(e.g. {name}=0.033)"
@@ -406,9 +461,11 @@ class PipelineConfig(StageConfig):
                     values[name] = float(raw)
                 except ValueError:
                     raise ValueError(f"{entry!r}: the {param} of {name} must be a number (e.g. {name}=0.033)") from None
-            elif sep:
+            elif raw is not None:
                 raise ValueError(f"{entry!r}: only {sorted(EFFECT_VALUES)} take a value; give {name} by name alone")
             plain.append(name)
+            if name in PER_RECORDING_EFFECTS:
+                scoped.setdefault(name, set()).add(scope or DEFAULT_SCOPES[name])
         names = list(dict.fromkeys(plain))
         unknown = [n for n in names if n not in EFFECT_STAGES]
         if unknown:
@@ -417,10 +474,14 @@ class PipelineConfig(StageConfig):
                 "(the diagnosis still ranks the others and reports their fitted parameters)."
             )
         update: dict = {}
-        sensor = [n for n in names if EFFECT_STAGES[n] == "reconstruct"]
+        sensor = [n for n in names if EFFECT_STAGES[n] == "reconstruct" and "static" in scoped.get(n, {"static"})]
         if sensor:
             merged = sorted(set(self.reconstruct.sensor_effects) | set(sensor))
             update["reconstruct"] = self.reconstruct.model_copy(update={"sensor_effects": merged})
+        camera = [n for n in names if "dynamic" in scoped.get(n, set())]
+        if camera:
+            merged = sorted(set(self.articulate.sensor_effects) | set(camera))
+            update["articulate"] = self.articulate.model_copy(update={"sensor_effects": merged})
         if "screw_joint" in names:
             update["fit_joints"] = self.fit_joints.model_copy(update={"model_screw": True})
         if "pose_drift" in names:
@@ -434,8 +495,10 @@ class PipelineConfig(StageConfig):
         return self.model_copy(update=update)
 
     def enabled_effects(self) -> list[str]:
-        """The catalog effects this config models (the inverse of ``with_effects``)."""
-        out = list(self.reconstruct.sensor_effects)
+        """The catalog effects this config models (the inverse of ``with_effects``); those with a
+        model per recording (``PER_RECORDING_EFFECTS``) with their scope: ``dynamic:vignetting``."""
+        out = [f"static:{e}" if e in PER_RECORDING_EFFECTS else e for e in self.reconstruct.sensor_effects]
+        out += [f"dynamic:{e}" for e in self.articulate.sensor_effects]
         if self.fit_joints.model_screw:
             out.append("screw_joint")
         if self.pose_drift.model:
