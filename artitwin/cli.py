@@ -278,6 +278,10 @@ def compare(
         cmp = compare_run_folders(before, after, target)
     except ArtiTwinError as e:
         _fail(str(e))
+    for line in cmp.lead:
+        Console().print(f"[bold]{line}[/]")
+    for line in cmp.regressions:
+        Console().print(f"[bold red]{line}[/]")
     table = Table(title=f"A = {cmp.a.name}  vs  B = {cmp.b.name}")
     for col in ("metric", "A", "B", "change", ""):
         table.add_column(col)

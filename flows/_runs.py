@@ -171,9 +171,57 @@ def run_record(path: str | Path) -> RunRecord:
     )
 
 
+# The per-frame curve of the residual each modelable effect targets (the diagnosis's curves).
+EFFECT_CURVES = {
+    "exposure_white_balance": ("photometric", "rgb_rms"),
+    "vignetting": ("photometric", "rgb_rms"),
+    "time_offset": ("photometric", "rgb_rms"),
+    "depth_scale_offset": ("depth", "depth_rms_m"),
+    "pose_drift": ("depth", "depth_rms_m"),
+    "pose_lag": ("depth", "depth_rms_m"),
+    "screw_joint": ("joint tracks", "track_rms_m"),
+}
+
+
+def _scopes_of(entry: str, curve_scopes: list[str]) -> list[str]:
+    """The diagnosis scopes an ``--effect`` entry models: its own, or for an effect whose one
+    switch serves both recordings (or every joint), all of them that have curves."""
+    from schemas._configs import DEFAULT_SCOPES, EFFECT_SCOPES, PER_RECORDING_EFFECTS, split_effect
+
+    scope, name, _ = split_effect(entry)
+    kinds = EFFECT_SCOPES.get(name, ())
+    if name in PER_RECORDING_EFFECTS:
+        kinds = (scope or DEFAULT_SCOPES[name],)
+    full = {"static": STATIC_SCOPE, "dynamic": DYNAMIC_SCOPE}
+    out = [full[k] for k in kinds if k in full]
+    if "joint" in kinds:
+        out += [s for s in curve_scopes if s not in (STATIC_SCOPE, DYNAMIC_SCOPE)]
+    return out
+
+
+def comparison_targets(ra: RunRecord, rb: RunRecord) -> tuple[list[tuple[str, str, str]], list[tuple[str, str]]]:
+    """``(targets, others)`` for ``compare_runs``: the curve, in its scope, of each effect ``rb``
+    models and ``ra`` does not; and every other scope's curves."""
+    curves = sorted(set(ra.per_frame) & set(rb.per_frame))
+    curve_scopes = sorted({c.split("/")[1] for c in curves if c.count("/") >= 2})
+    have = {_canonical(e) for e in ra.effects}
+    targets = []
+    for entry in rb.effects:
+        if _canonical(entry) in have or entry.split(":")[-1].split("=")[0] not in EFFECT_CURVES:
+            continue
+        target, leaf = EFFECT_CURVES[entry.split(":")[-1].split("=")[0]]
+        for scope in _scopes_of(entry, curve_scopes):
+            targets.append((f"{scope}, {target} ({leaf})", f"diagnose/{scope}/{leaf}", entry))
+    others = [(f"{c.split('/')[1]}, {c.split('/')[-1]}", c) for c in curves if c.count("/") >= 2]
+    return targets, others
+
+
 def compare_run_folders(a: str | Path, b: str | Path, html_out: str | Path | None = None) -> RunComparison:
-    """Compare run ``b`` with run ``a``; write the HTML report to ``html_out`` when given."""
-    cmp = compare_runs(run_record(a), run_record(b))
+    """Compare run ``b`` with run ``a``; write the HTML report to ``html_out`` when given. The
+    comparison leads with the residuals the effects ``b`` adds target, in their scope, on held-out
+    frames, and flags any other scope's curve that rose beyond its noise."""
+    ra, rb = run_record(a), run_record(b)
+    cmp = compare_runs(ra, rb, *comparison_targets(ra, rb))
     if html_out is not None:
         out = Path(html_out)
         out.parent.mkdir(parents=True, exist_ok=True)
