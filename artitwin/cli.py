@@ -225,7 +225,7 @@ def diagnose(
     top: Annotated[int, typer.Option("--top", help="Show this many ranked effects.")] = 12,
 ) -> None:
     """Where the twin fails against the measurement, and which physical effect it is missing."""
-    from flows._runs import diagnosis_of, rank_findings, read_summary, rerun_effects
+    from flows._runs import diagnosis_of, not_modelled_advice, rank_findings, read_summary, rerun_effects
 
     try:
         where, summary = read_summary(run_dir)
@@ -253,7 +253,9 @@ def diagnose(
         Console().print(f"rerun with it modelled: artitwin run {scene} {flags} --out {where}-effects  "
                         f"(then: artitwin compare {where} {where}-effects)")
     if cannot:
-        Console().print(f"diagnosed but not modelled by any stage in that scope: {', '.join(cannot)}")
+        Console().print("diagnosed but not modelled by any stage in that scope:")
+        for entry in cannot:
+            Console().print(f"  - {not_modelled_advice(entry)}")
     if html_out is not None:
         html_out.parent.mkdir(parents=True, exist_ok=True)
         html_out.write_text(report.html, encoding="utf-8")

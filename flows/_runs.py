@@ -84,6 +84,24 @@ def rerun_effects(report: DiagnosisReport, modelled: list[str]) -> tuple[list[st
     return sorted(dict.fromkeys(flags)), sorted(dict.fromkeys(cannot))
 
 
+# What to do about a diagnosed effect no stage models (docs/effects.md, "Which of them a rerun can model").
+NOT_MODELLED = {
+    "depth_noise": "not modelled: the twin's depth loss is already weighted by the sensor's confidence; a noisier "
+    "sensor than assumed calls for capturing closer or with a better depth sensor",
+    "axis_tilt": "not modelled yet: a rigid hinge is what the URDF/USD exports can express; the fitted tilt is reported",
+    "drawer_tilt": "not modelled yet: a rigid slide is what the URDF/USD exports can express; the fitted tilt is reported",
+    "lens_distortion": "not learnable from the images at phone resolution; recalibrate the camera and re-export the "
+    "recording with its distortion coefficients (a lens the capture records is honoured)",
+    "rolling_shutter": "not modelled: record again moving the camera more slowly (the shift grows with image speed)",
+}
+
+
+def not_modelled_advice(entry: str) -> str:
+    """``entry`` (as ``rerun_effects`` lists it) with what to do about it, outside the product if need be."""
+    name = entry.split(" (")[0]
+    return f"{entry}: {NOT_MODELLED[name]}" if name in NOT_MODELLED else entry
+
+
 def rank_findings(findings: list) -> list:
     """Every scope's findings in one ranking: enabled first, then significant, then by the share
     of their target's residual they explain (a scope's own order breaks ties)."""
