@@ -85,6 +85,9 @@ class ArticulationResult:
     camera: SensorModel | None = None
 
 
+CAMERA_FIT_MAX_SIDE = 256
+
+
 def fit_dynamic_camera(
     params: GaussianParams,
     joints: Sequence[Joint],
@@ -99,6 +102,11 @@ def fit_dynamic_camera(
     rendered at ``frames`` with the parts at their states: fitted on the background pixels the
     twin covers (the hand and the part, grown by ``region_dilate_px``, left out)."""
     frames = sorted(int(f) for f in frames)
+    # A few gains per frame need few pixels: render and fit at most CAMERA_FIT_MAX_SIDE on the long
+    # side (the model is resolution-free: gains per frame, vignetting over the normalised radius).
+    if max(dynamic.rgb_size) > CAMERA_FIT_MAX_SIDE:
+        dynamic = downscale_rgb(dynamic, CAMERA_FIT_MAX_SIDE)
+        masks = downscale_masks(masks, dynamic.rgb_size)
     twin = TwinRenderer(params, joints, backend=config.backend, appearance=appearance)
     w, h = dynamic.rgb_size
     pred, valid = [], []

@@ -62,6 +62,7 @@ def test_the_loop_models_the_dynamic_drift_where_it_is(tmp_path, monkeypatch):
     assert b["articulate"].status == "computed"
 
     cmp = compare_run_folders(tmp_path / "a", tmp_path / "b")
+    print("\n".join(["flags: " + " ".join(flags)] + cmp.lead + cmp.regressions))  # shown with -s
     lead = [line for line in cmp.lead if line.startswith("dynamic recording, photometric")]
     assert lead and "the loop worked" in lead[0], cmp.lead
     fall = float(re.search(r"([+-]\d+)%", lead[0]).group(1))
