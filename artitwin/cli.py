@@ -18,7 +18,7 @@ from artitwin._cli_common import StoreOpt, _fail, _load_config, console
 from artitwin._cli_queue import register as _register_queue_commands
 from artitwin_core import ArtiTwinError
 from schemas import PipelineConfig
-from schemas._effects import MODELLED_EFFECTS
+from schemas._effects import EFFECT_SCOPES, MODELLED
 
 app = typer.Typer(add_completion=False, no_args_is_help=True, help=__doc__)
 store_app = typer.Typer(no_args_is_help=True, help="Inspect and maintain the artifact store.")
@@ -89,11 +89,34 @@ def _run_and_report(scene: Path, out: Path, config, store: str | None, use_prefe
 
 
 _EFFECT_HELP = (
-    "Model this physical effect (repeatable): "
-    + ", ".join(f"{e.name}={e.param.upper()}" if e.param else e.name for e in MODELLED_EFFECTS)
-    + " (with the value the diagnosis fitted). `artitwin diagnose` names the ones a run needs. Cached stages "
-    "upstream of it are reused."
+    "Model this physical effect (repeatable) in a scope, SCOPE:NAME: "
+    + ", ".join(
+        f"{'|'.join(EFFECT_SCOPES[e.name])}:{e.name}" + (f"={e.param.upper()}" if e.param else "")
+        for e in MODELLED.values()
+    )
+    + " (joint: joint_0, joint_1, ...; a value is the one the diagnosis fitted). `artitwin diagnose` prints the "
+    "ones a run needs, with their scope. A bare NAME goes where --diagnosis RUN found it (else: the static "
+    "recording). Cached stages upstream of it are reused."
 )
+
+
+def _scope_effects(effects: list[str], diagnosis: Path | None, out: Path) -> list[str]:
+    """``--effect`` entries with bare names placed where a diagnosis found them: the run
+    ``diagnosis`` (an error if it has none), else the run already in ``out`` when there is one."""
+    from flows._runs import diagnosis_of, read_summary, scope_bare_effects
+
+    source = diagnosis if diagnosis is not None else (out if (out / "summary.json").is_file() else None)
+    report = None
+    if source is not None:
+        try:
+            where, summary = read_summary(source)
+            report = diagnosis_of(summary, where)
+        except ArtiTwinError as e:
+            if diagnosis is not None:
+                _fail(f"--diagnosis: {e}")
+        if report is None and diagnosis is not None:
+            _fail(f"--diagnosis: {diagnosis} has no diagnosis; give a run that completed its diagnose stage.")
+    return scope_bare_effects(effects, report)
 
 
 @app.command()
@@ -107,6 +130,11 @@ def run(
     effect: Annotated[
         list[str] | None,
         typer.Option("--effect", help=_EFFECT_HELP),
+    ] = None,
+    diagnosis: Annotated[
+        Path | None,
+        typer.Option("--diagnosis", help="A run of this scene whose diagnosis places bare --effect names in the "
+                     "scope it found them in (default: the run already in --out, if any)."),
     ] = None,
     sam2: Annotated[
         Path | None,
@@ -122,9 +150,11 @@ def run(
         cfg = cfg.model_copy(update={"part_masks": cfg.part_masks.model_copy(update={"sam2_checkpoint": str(sam2.resolve())})})
     if effect:
         try:
+            effect = _scope_effects(effect, diagnosis, out)
             cfg = cfg.with_effects(effect)
         except ValueError as e:
             _fail(f"--effect: {e}")
+        console.print(f"modelling: {', '.join(cfg.enabled_effects())}")
     _run_and_report(scene, out, cfg, store, prefect)
 
 
@@ -169,7 +199,7 @@ def diagnose(
     top: Annotated[int, typer.Option("--top", help="Show this many ranked effects.")] = 12,
 ) -> None:
     """Where the twin fails against the measurement, and which physical effect it is missing."""
-    from flows._runs import diagnosis_of, read_summary, rerun_effects
+    from flows._runs import diagnosis_of, not_modelled_advice, rank_findings, read_summary, rerun_effects
 
     try:
         where, summary = read_summary(run_dir)
@@ -180,10 +210,10 @@ def diagnose(
         _fail(f"{where}: this run has no diagnose stage; rerun it with the full pipeline.")
     modelled = summary.get("effects") or []
     console.print(f"run {where}: the twin models {', '.join(modelled) or 'an ideal camera and ideal joints'}")
-    table = Table(title="effects, ranked by the residual they explain")
+    table = Table(title="effects in every scope, ranked by the residual they explain")
     for col in ("#", "scope", "effect", "target", "explained", "significant", "enabled", "parameters"):
         table.add_column(col)
-    for i, f in enumerate(report.findings[:top]):
+    for i, f in enumerate(rank_findings(report.findings)[:top]):
         params = ", ".join(f"{k}={v:.3g}" for k, v in f.params.items() if isinstance(v, int | float) and not isinstance(v, bool))
         table.add_row(str(i + 1), f.scope, f.name, f.target, f"{100 * f.explained_frac:.0f}%",
                       "yes" if f.significant else "no", "yes" if f.enabled else "", params[:60])
@@ -197,7 +227,9 @@ def diagnose(
         Console().print(f"rerun with it modelled: artitwin run {scene} {flags} --out {where}-effects  "
                         f"(then: artitwin compare {where} {where}-effects)")
     if cannot:
-        Console().print(f"diagnosed but not yet modelled by any stage: {', '.join(cannot)}")
+        Console().print("diagnosed but not modelled by any stage in that scope:")
+        for entry in cannot:
+            Console().print(f"  - {not_modelled_advice(entry)}")
     if html_out is not None:
         html_out.parent.mkdir(parents=True, exist_ok=True)
         html_out.write_text(report.html, encoding="utf-8")
@@ -222,6 +254,10 @@ def compare(
         cmp = compare_run_folders(before, after, target)
     except ArtiTwinError as e:
         _fail(str(e))
+    for line in cmp.lead:
+        Console().print(f"[bold]{line}[/]")
+    for line in cmp.regressions:
+        Console().print(f"[bold red]{line}[/]")
     table = Table(title=f"A = {cmp.a.name}  vs  B = {cmp.b.name}")
     for col in ("metric", "A", "B", "change", ""):
         table.add_column(col)

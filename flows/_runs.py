@@ -36,27 +36,97 @@ def read_summary(path: str | Path) -> tuple[Path, dict[str, Any]]:
 DIAGNOSIS_STAGES = ("diagnose", "diagnose_static", "diagnose_dynamic")
 
 
+def _canonical(entry: str) -> str:
+    """An ``--effect`` entry without its value, with its scope where the effect has a model per
+    recording (a bare one gets the default scope): what two entries are compared by."""
+    from schemas._configs import DEFAULT_SCOPES, PER_RECORDING_EFFECTS, split_effect
+
+    scope, name, _ = split_effect(entry)
+    if name in PER_RECORDING_EFFECTS:
+        return f"{scope or DEFAULT_SCOPES[name]}:{name}"
+    return name
+
+
 def rerun_effects(report: DiagnosisReport, modelled: list[str]) -> tuple[list[str], list[str]]:
-    """The ``--effect`` values that model what the diagnosis ``report`` enabled, beside those the
-    run already ``modelled`` (``PipelineConfig.enabled_effects``), and the enabled effects no stage
-    models. An effect that takes a value gets the one the diagnosis fitted (``time_offset=0.033``)."""
+    """The ``--effect`` values that model what the diagnosis ``report`` enabled, each in the scope
+    it was found in (``dynamic:exposure_white_balance``, ``joint_0:screw_joint``), beside those the
+    run already ``modelled`` (``PipelineConfig.enabled_effects``); and the enabled effects no stage
+    models there, with their scope. An effect that takes a value gets the one the diagnosis fitted
+    (``time_offset=0.033``)."""
+    from schemas._configs import EFFECT_SCOPES, EFFECT_STAGES, effect_scope
     from schemas._effects import MODELLED
 
-    wanted = sorted({e.split("/", 1)[-1] for e in report.enabled})
-    have = {m.split("=", 1)[0] for m in modelled}
-    flags = []
-    for name in wanted:
-        if name not in MODELLED or name in have:
+    have = {_canonical(m) for m in modelled}
+    flags, cannot = [], []
+    for entry in dict.fromkeys(report.enabled):
+        scope, _, name = entry.rpartition("/")
+        try:
+            short = effect_scope(scope) if scope else None
+        except ValueError:
+            short = None
+        kind = "joint" if short and short.startswith("joint_") else short
+        if name not in EFFECT_STAGES:
+            cannot.append(name if not scope else f"{name} ({scope})")
+            continue
+        if short is None or kind not in EFFECT_SCOPES[name]:
+            where = " or ".join(EFFECT_SCOPES[name])
+            cannot.append(f"{name} ({scope}: modelled only in the {where} scope)")
+            continue
+        flag = f"{short}:{name}"
+        if _canonical(flag) in have:
             continue
         param = MODELLED[name].param
         if param:
             fitted = [f.params[param] for f in report.findings if f.name == name and param in f.params]
             if not fitted:
                 continue
-            name = f"{name}={float(fitted[0]):.4g}"
-        flags.append(name)
-    cannot = [e for e in wanted if e not in MODELLED]
-    return flags, cannot
+            flag = f"{flag}={float(fitted[0]):.4g}"
+        flags.append(flag)
+    return sorted(dict.fromkeys(flags)), sorted(dict.fromkeys(cannot))
+
+
+# What to do about a diagnosed effect no stage models (docs/effects.md, "Which of them a rerun can model").
+NOT_MODELLED = {
+    "depth_noise": "not modelled: the twin's depth loss is already weighted by the sensor's confidence; a noisier "
+    "sensor than assumed calls for capturing closer or with a better depth sensor",
+    "axis_tilt": "not modelled yet: a rigid hinge is what the URDF/USD exports can express; the fitted tilt is reported",
+    "drawer_tilt": "not modelled yet: a rigid slide is what the URDF/USD exports can express; the fitted tilt is reported",
+    "lens_distortion": "not learnable from the images at phone resolution; recalibrate the camera and re-export the "
+    "recording with its distortion coefficients (a lens the capture records is honoured)",
+    "rolling_shutter": "not modelled: record again moving the camera more slowly (the shift grows with image speed)",
+}
+
+
+def not_modelled_advice(entry: str) -> str:
+    """``entry`` (as ``rerun_effects`` lists it) with what to do about it, outside the product if need be."""
+    name = entry.split(" (")[0]
+    return f"{entry}: {NOT_MODELLED[name]}" if name in NOT_MODELLED else entry
+
+
+def rank_findings(findings: list) -> list:
+    """Every scope's findings in one ranking: enabled first, then significant, then by the share
+    of their target's residual they explain (a scope's own order breaks ties)."""
+    order = {id(f): i for i, f in enumerate(findings)}
+    return sorted(findings, key=lambda f: (not f.enabled, not f.significant, -f.explained_frac, order[id(f)]))
+
+
+def scope_bare_effects(names: list[str], report: DiagnosisReport | None) -> list[str]:
+    """``--effect`` entries with each bare per-recording name (``exposure_white_balance``) put in
+    the scope(s) the diagnosis ``report`` found it in (enabled there); a name the diagnosis did
+    not enable anywhere, or with no diagnosis at all, keeps its default scope (the static recording)."""
+    from schemas._configs import PER_RECORDING_EFFECTS, effect_scope, split_effect
+
+    out = []
+    for entry in names:
+        scope, name, _ = split_effect(entry)
+        found = []
+        if scope is None and name in PER_RECORDING_EFFECTS and report is not None:
+            for e in report.enabled:
+                where, _, n = e.rpartition("/")
+                if n == name and where in ("static recording", "dynamic recording"):
+                    found.append(f"{effect_scope(where)}:{entry}")
+        out += found or [entry]
+    return out
 
 
 def diagnosis_of(summary: dict[str, Any], where: Path) -> DiagnosisReport | None:
@@ -120,9 +190,57 @@ def run_record(path: str | Path) -> RunRecord:
     )
 
 
+# The per-frame curve of the residual each modelable effect targets (the diagnosis's curves).
+EFFECT_CURVES = {
+    "exposure_white_balance": ("photometric", "rgb_rms"),
+    "vignetting": ("photometric", "rgb_rms"),
+    "time_offset": ("photometric", "rgb_rms"),
+    "depth_scale_offset": ("depth", "depth_rms_m"),
+    "pose_drift": ("depth", "depth_rms_m"),
+    "pose_lag": ("depth", "depth_rms_m"),
+    "screw_joint": ("joint tracks", "track_rms_m"),
+}
+
+
+def _scopes_of(entry: str, curve_scopes: list[str]) -> list[str]:
+    """The diagnosis scopes an ``--effect`` entry models: its own, or for an effect whose one
+    switch serves both recordings (or every joint), all of them that have curves."""
+    from schemas._configs import DEFAULT_SCOPES, EFFECT_SCOPES, PER_RECORDING_EFFECTS, split_effect
+
+    scope, name, _ = split_effect(entry)
+    kinds = EFFECT_SCOPES.get(name, ())
+    if name in PER_RECORDING_EFFECTS:
+        kinds = (scope or DEFAULT_SCOPES[name],)
+    full = {"static": STATIC_SCOPE, "dynamic": DYNAMIC_SCOPE}
+    out = [full[k] for k in kinds if k in full]
+    if "joint" in kinds:
+        out += [s for s in curve_scopes if s not in (STATIC_SCOPE, DYNAMIC_SCOPE)]
+    return out
+
+
+def comparison_targets(ra: RunRecord, rb: RunRecord) -> tuple[list[tuple[str, str, str]], list[tuple[str, str]]]:
+    """``(targets, others)`` for ``compare_runs``: the curve, in its scope, of each effect ``rb``
+    models and ``ra`` does not; and every other scope's curves."""
+    curves = sorted(set(ra.per_frame) & set(rb.per_frame))
+    curve_scopes = sorted({c.split("/")[1] for c in curves if c.count("/") >= 2})
+    have = {_canonical(e) for e in ra.effects}
+    targets = []
+    for entry in rb.effects:
+        if _canonical(entry) in have or entry.split(":")[-1].split("=")[0] not in EFFECT_CURVES:
+            continue
+        target, leaf = EFFECT_CURVES[entry.split(":")[-1].split("=")[0]]
+        for scope in _scopes_of(entry, curve_scopes):
+            targets.append((f"{scope}, {target} ({leaf})", f"diagnose/{scope}/{leaf}", entry))
+    others = [(f"{c.split('/')[1]}, {c.split('/')[-1]}", c) for c in curves if c.count("/") >= 2]
+    return targets, others
+
+
 def compare_run_folders(a: str | Path, b: str | Path, html_out: str | Path | None = None) -> RunComparison:
-    """Compare run ``b`` with run ``a``; write the HTML report to ``html_out`` when given."""
-    cmp = compare_runs(run_record(a), run_record(b))
+    """Compare run ``b`` with run ``a``; write the HTML report to ``html_out`` when given. The
+    comparison leads with the residuals the effects ``b`` adds target, in their scope, on held-out
+    frames, and flags any other scope's curve that rose beyond its noise."""
+    ra, rb = run_record(a), run_record(b)
+    cmp = compare_runs(ra, rb, *comparison_targets(ra, rb))
     if html_out is not None:
         out = Path(html_out)
         out.parent.mkdir(parents=True, exist_ok=True)

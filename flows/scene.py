@@ -21,7 +21,7 @@ from flows._pipeline import (
 )
 from flows._progress import PrefectSink
 from flows._runner import StageFailure, StageRun, run_stage, skipped
-from flows._runs import rerun_effects
+from flows._runs import rank_findings, rerun_effects
 from infra.store import ArtifactStore, StoreError
 from schemas import DiagnosisReport, PipelineConfig, StageConfig, StageReport
 from tasks import STAGES
@@ -71,7 +71,7 @@ def diagnosis_markdown(report: DiagnosisReport, top: int = 8) -> list[str]:
     """The diagnosis as Markdown for the Prefect UI: the verdict, the ranked effects, what to rerun with."""
     lines = [""] + [f"- {c}" for c in report.conclusion]
     lines += ["", "| # | scope | effect | target | explained | significant | enabled |", "| --- | --- | --- | --- | --- | --- | --- |"]
-    for i, f in enumerate(report.findings[:top]):
+    for i, f in enumerate(rank_findings(report.findings)[:top]):
         lines.append(f"| {i + 1} | {f.scope} | {f.name} | {f.target} | {100 * f.explained_frac:.0f}% | "
                      f"{'yes' if f.significant else 'no'} | {'yes' if f.enabled else ''} |")
     modelled, _ = rerun_effects(report, [])

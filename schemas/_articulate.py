@@ -6,6 +6,8 @@ its ``PartitionConfig``); the defaults are theirs.
 
 from __future__ import annotations
 
+from typing import Literal
+
 from pydantic import Field
 
 from schemas._base import StageConfig
@@ -80,3 +82,10 @@ class ArticulateConfig(StageConfig):
         "with them (a CPU budget: a step's cost grows with the pixels); None = the captures' resolution.",
     )
     seed: int = Field(default=0, description="Seed of the view order.")
+    sensor_effects: list[Literal["exposure_white_balance", "vignetting"]] = Field(
+        default_factory=list,
+        description="The dynamic recording's own camera effects, modelled here (docs/effects.md): per-frame exposure "
+        "and white balance, vignetting, fitted against the twin on the training frames (held-out frames "
+        "interpolated) and stored with the twin for predict_dynamic. Empty = the static recording's camera. "
+        "`artitwin run --effect dynamic:NAME` enables one.",
+    )

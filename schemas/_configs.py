@@ -10,12 +10,21 @@ configs readable.
 
 from __future__ import annotations
 
+import re
+
 from pydantic import Field, model_validator
 
 from schemas._articulate import ArticulateConfig
 from schemas._base import StageConfig
 from schemas._diagnose import DiagnoseConfig, PredictViewsConfig
-from schemas._effects import MODELLED, MODELLED_EFFECTS
+from schemas._effects import (
+    DEFAULT_SCOPES,
+    EFFECT_SCOPES,
+    MODELLED,
+    MODELLED_EFFECTS,
+    PER_RECORDING_EFFECTS,
+    modelled_in,
+)
 from schemas._export import ExportConfig
 from schemas._parts import PartStageConfig
 from schemas._reconstruct import PoseRefineStageConfig, ReconstructConfig
@@ -306,10 +315,39 @@ class JointStateConfig(StageConfig):
 # The stage whose forward model gains each catalog effect when a user enables it
 # (``PipelineConfig.with_effects``), and the effects modelled with a value the diagnosis fits
 # (``NAME=VALUE``): the parameter it reports and the stage config field the value sets. Both are
-# read off the one table, schemas._effects.MODELLED_EFFECTS; the other catalog effects are
-# diagnosed only.
-EFFECT_STAGES: dict[str, str] = {e.name: e.stage for e in MODELLED_EFFECTS}
-EFFECT_VALUES: dict[str, tuple[str, str]] = {e.name: (e.param, e.field) for e in MODELLED_EFFECTS if e.param}
+# read off the one table, schemas._effects.MODELLED_EFFECTS (each effect's default scope); where
+# each can be modelled is its EFFECT_SCOPES. The other catalog effects are diagnosed only.
+EFFECT_STAGES: dict[str, str] = {name: e.stage for name, e in MODELLED.items()}
+EFFECT_VALUES: dict[str, tuple[str, str]] = {name: (e.param, e.field) for name, e in MODELLED.items() if e.param}
+RECORDING_SCOPES = {"static recording": "static", "dynamic recording": "dynamic"}
+
+
+def effect_scope(scope: str) -> str:
+    """The ``--effect`` scope of a diagnosis scope or a short one (``"dynamic recording"`` ->
+    ``"dynamic"``, ``"joint_0"`` stays); ``ValueError`` naming the valid scopes."""
+    s = RECORDING_SCOPES.get(scope, scope)
+    if s in ("static", "dynamic") or re.fullmatch(r"joint_\d+", s):
+        return s
+    raise ValueError(
+        f"unknown scope {scope!r}; give static, dynamic or a joint (joint_0, joint_1, ...), "
+        "as `artitwin diagnose` names them"
+    )
+
+
+def split_effect(entry: str) -> tuple[str | None, str, str | None]:
+    """``(scope or None, name, value or None)`` of an ``--effect`` entry ``[SCOPE:]NAME[=VALUE]``;
+    the scope is checked (``effect_scope``) and must be one the effect can be modelled in."""
+    head, sep, raw = str(entry).partition("=")
+    scope, colon, name = head.rpartition(":")
+    if not colon:
+        return None, name, raw if sep else None
+    short = effect_scope(scope)
+    kind = "joint" if short.startswith("joint_") else short
+    valid = EFFECT_SCOPES.get(name)
+    if valid is not None and kind not in valid:
+        where = ", ".join("a joint (joint_0, ...)" if v == "joint" else v for v in valid)
+        raise ValueError(f"{entry!r}: {name} can be modelled in {where}, not in {scope}")
+    return short, name, raw if sep else None
 
 
 class FramePoseStageConfig(StageConfig):
@@ -395,17 +433,22 @@ class PipelineConfig(StageConfig):
 
     def with_effects(self, names) -> PipelineConfig:
         """This config with the physical effects ``names`` (from the diagnosis catalog) enabled in
-        the stages that model them (``EFFECT_STAGES``). Only those stages' configs change, so a rerun
+        the stages that model them (``EFFECT_STAGES``), each ``[SCOPE:]NAME[=VALUE]``: the scope
+        (``EFFECT_SCOPES``) says where: ``dynamic:exposure_white_balance`` models the dynamic
+        recording's exposure in articulate, ``static:vignetting`` the static one's in reconstruct;
+        a bare name takes ``DEFAULT_SCOPES`` (callers that have a diagnosis resolve it first,
+        ``flows._runs.scope_bare_effects``). Only those stages' configs change, so a rerun
         reuses every cached artifact upstream of them. An effect the stage cannot fit itself takes
         the value the diagnosis fitted as ``NAME=VALUE`` (``EFFECT_VALUES``: ``time_offset=0.033``).
         ``ValueError`` names an effect no stage models, or a value that is missing or not a number."""
         values: dict[str, float] = {}
         plain = []
+        scoped: dict[str, set[str]] = {}  # per-recording effect -> recordings
         for entry in names:
-            name, sep, raw = str(entry).partition("=")
-            if name in MODELLED and MODELLED[name].param:
-                param = MODELLED[name].param
-                if not sep:
+            scope, name, raw = split_effect(str(entry))
+            if name in EFFECT_VALUES:
+                param = EFFECT_VALUES[name][0]
+                if raw is None:
                     raise ValueError(
                         f"the effect {name} needs its {param}, as the diagnosis reports it: {name}=VALUE "
                         f"(e.g. {name}=0.033)"
@@ -414,9 +457,11 @@ class PipelineConfig(StageConfig):
                     values[name] = float(raw)
                 except ValueError:
                     raise ValueError(f"{entry!r}: the {param} of {name} must be a number (e.g. {name}=0.033)") from None
-            elif sep:
+            elif raw is not None:
                 raise ValueError(f"{entry!r}: only {sorted(EFFECT_VALUES)} take a value; give {name} by name alone")
             plain.append(name)
+            if name in PER_RECORDING_EFFECTS:
+                scoped.setdefault(name, set()).add(scope or DEFAULT_SCOPES[name])
         names = list(dict.fromkeys(plain))
         unknown = [n for n in names if n not in MODELLED]
         if unknown:
@@ -426,25 +471,29 @@ class PipelineConfig(StageConfig):
             )
         update: dict = {}
         for name in names:
-            effect = MODELLED[name]
-            current = update.get(effect.stage, getattr(self, effect.stage))
-            now = getattr(current, effect.field)
-            if isinstance(now, list):
-                value = sorted(set(now) | {name})
-            else:
-                value = values[name] if effect.param else True
-            # validated: bounds and cross-field rules hold
-            update[effect.stage] = current.model_validate({**current.model_dump(), effect.field: value, **effect.also})
+            # An effect with a model per recording goes to each recording asked for; others to their one row.
+            kinds = sorted(scoped.get(name, ())) if name in PER_RECORDING_EFFECTS else [DEFAULT_SCOPES[name]]
+            for effect in (modelled_in(name, kind) for kind in kinds):
+                assert effect is not None  # split_effect checked the scope against EFFECT_SCOPES
+                current = update.get(effect.stage, getattr(self, effect.stage))
+                now = getattr(current, effect.field)
+                if isinstance(now, list):
+                    value = sorted(set(now) | {name})
+                else:
+                    value = values[name] if effect.param else True
+                # validated: bounds and cross-field rules hold
+                update[effect.stage] = current.model_validate({**current.model_dump(), effect.field: value, **effect.also})
         return self.model_copy(update=update)
 
     def enabled_effects(self) -> list[str]:
-        """The catalog effects this config models (the inverse of ``with_effects``)."""
+        """The catalog effects this config models (the inverse of ``with_effects``); those with a
+        model per recording (``PER_RECORDING_EFFECTS``) with their scope: ``dynamic:vignetting``."""
         out = []
         for effect in MODELLED_EFFECTS:
             value = getattr(getattr(self, effect.stage), effect.field)
             if isinstance(value, list):
                 if effect.name in value:
-                    out.append(effect.name)
+                    out.append(f"{effect.scopes[0]}:{effect.name}" if effect.name in PER_RECORDING_EFFECTS else effect.name)
             elif effect.param:
                 if value != 0.0:
                     out.append(f"{effect.name}={value:g}")

@@ -33,6 +33,7 @@ from schemas import (
 from schemas._articulate import ArticulateConfig
 from tasks._convert import config_map, to_artifact, to_core, to_core_config
 from tasks._stage import stage
+from tasks.reconstruct import sensor_fields
 
 config_map(
     ArticulateConfig,
@@ -43,6 +44,7 @@ config_map(
                "appearance_knots lr_means backend seed".split()},
             "partition_depth_tol_m": "partition.depth_tol_m",
             "train_max_side": "max_side",
+            "sensor_effects": "camera_effects",
         },
     },
 )
@@ -72,7 +74,8 @@ def _dynamic(dynamic: CaptureArtifact, registration: Registration) -> Capture:
     return to_core(Capture, dynamic, world_from_camera=canonical)
 
 
-@stage(name="articulate", version=2, config=ArticulateConfig, output=GaussianCheckpoint)
+# 3: the twin carries the dynamic recording's camera when ArticulateConfig.sensor_effects asks for it.
+@stage(name="articulate", version=3, config=ArticulateConfig, output=GaussianCheckpoint)
 def articulate_twin(
     canonical: GaussianCheckpoint,
     static: CaptureArtifact,
@@ -86,6 +89,8 @@ def articulate_twin(
     """The labelled (0 background, 1 interior, 2 + k part k) and optimised twin, parts closed.
 
     The dynamic frames held out (every ``holdout_every``-th) train nothing; see ``articulate_report``.
+    With ``config.sensor_effects``, the checkpoint's sensor fields are the dynamic recording's
+    camera (frame indices are positions in the dynamic recording), which ``predict_dynamic`` applies.
     """
     st = _static(static, static_poses)
     dyn = _dynamic(dynamic, registration)
@@ -94,7 +99,7 @@ def articulate_twin(
         to_core(MaskSequence, masks), core_joints(joints), core_config(config),
     )  # fmt: skip
     steps = int(canonical.step) + config.phase1_steps + config.phase2_steps
-    return to_artifact(GaussianCheckpoint, result.params, step=steps)
+    return to_artifact(GaussianCheckpoint, result.params, step=steps, **sensor_fields(result.camera))
 
 
 @stage(name="articulate_report", version=1, config=ArticulateConfig, output=StageReport)

@@ -134,7 +134,8 @@ def predict_views(
                           world_from_camera=np.asarray(poses.world_from_camera, np.float64)[frames])
 
 
-@stage(name="predict_dynamic", version=3, config=PredictViewsConfig, output=ViewPrediction)
+# 4: the dynamic recording's camera, when stage IV modelled it, is applied.
+@stage(name="predict_dynamic", version=4, config=PredictViewsConfig, output=ViewPrediction)
 def predict_dynamic(
     twin: GaussianCheckpoint,
     dynamic: CaptureArtifact,
@@ -155,6 +156,10 @@ def predict_dynamic(
     its exposure (the pose interpolated back, ``poses_on_rgb_clock``, and the states as they
     are) and its depth where the depth map was taken (the recorded pose, the states moved back
     with ``to_rgb_clock``).
+
+    When stage IV modelled the dynamic recording's own camera (``ArticulateConfig.sensor_effects``,
+    stored with the twin), each frame's RGB goes through it: the per-frame gains where fitted,
+    interpolated in time on the frames stage IV held out.
     """
     t_frames = dynamic.rgb.shape[0]
     if masks.hand.shape[0] != t_frames or any(len(j.q) != t_frames for j in joints.joints):
@@ -182,6 +187,7 @@ def predict_dynamic(
         sel = np.asarray(masks.hand, bool)[frames]
         no_part = np.broadcast_to(np.zeros((1, 1, 1), np.uint8), sel.shape)
         hands = downscale_masks(MaskSequence(no_part, sel, np.ones(len(frames), np.float32)), (w, h)).hand
+    camera = sensor_model(twin)  # the dynamic recording's camera, when stage IV modelled it
     twin = TwinRenderer(params, js, backend=config.backend)  # the twin goes to the device once
     twin_depth = twin if js_depth is js else TwinRenderer(params, js_depth, backend=config.backend)
     for i in _counted("rendering the dynamic frames", len(frames)):
@@ -189,6 +195,8 @@ def predict_dynamic(
         q = [float(j.q[t]) for j in js]
         q_d = [float(j.q[t]) for j in js_depth]
         colour, _, alpha = twin.render(q, rgb_poses[t], cap.rgb_intrinsics[i], w, h)
+        if camera is not None:
+            colour = camera.apply_rgb(np.clip(colour, 0, 1), t, cap.rgb_intrinsics[i])
         _, z, alpha_d = twin_depth.render(q_d, poses[t], dynamic.depth_intrinsics[t], dw, dh)
         hand_full = np.asarray(masks.hand[t], bool)
         hand = hand_full if hands is None else hands[i]  # at the prediction's RGB size

@@ -88,6 +88,9 @@ class ArticulationConfig:
             downscaled to at most this many pixels on the long side, the masks with them (None:
             as the captures hold them); a CPU budget: a step's cost grows with the pixels.
         seed: random view order.
+        camera_effects: the dynamic recording's own camera effects to model (``RECORDING_EFFECTS``
+            of ``_camera``: per-frame exposure and white balance, vignetting), fitted against the
+            twin; empty: the dynamic recording is taken to have the static recording's camera.
     """
 
     partition: PartitionConfig = field(default_factory=PartitionConfig)
@@ -118,6 +121,7 @@ class ArticulationConfig:
     backend: BackendName = "auto"
     max_side: int | None = None
     seed: int = 0
+    camera_effects: tuple[str, ...] = ()
 
     def __post_init__(self) -> None:
         if self.holdout_every < 0 or self.holdout_every == 1:
@@ -133,6 +137,12 @@ class ArticulationConfig:
         if self.appearance_knots < 0 or self.appearance_knots == 1:
             raise InputError(
                 f"ArticulationConfig.appearance_knots is {self.appearance_knots}; use 0 (no curve) or >= 2."
+            )
+        unknown = sorted(set(self.camera_effects) - {"exposure_white_balance", "vignetting"})
+        if unknown:
+            raise InputError(
+                f"ArticulationConfig.camera_effects: {unknown} cannot be modelled for the dynamic recording; "
+                "give exposure_white_balance and/or vignetting."
             )
         if not 0.0 < self.seed_opacity < 1.0:
             raise InputError(

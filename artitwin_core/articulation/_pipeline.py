@@ -12,7 +12,9 @@ from scipy.ndimage import binary_dilation
 
 from artitwin_core._errors import InputError
 from artitwin_core.articulation._appearance import PartAppearance
+from artitwin_core.articulation._camera import CameraFitConfig, fit_recording_camera, remove_camera
 from artitwin_core.articulation._config import ArticulationConfig
+from artitwin_core.articulation._kinematics import TwinRenderer
 from artitwin_core.articulation._optimize import (
     ArticulatedViews,
     ArticulationState,
@@ -35,7 +37,7 @@ from artitwin_core.gaussians import (
 )
 from artitwin_core.joints import Joint
 from artitwin_core.masks import MaskSequence, downscale_masks
-from artitwin_core.reconstruction import make_views, scene_extent, split_frames
+from artitwin_core.reconstruction import SensorModel, make_views, scene_extent, split_frames
 
 
 def _concat(a: GaussianParams | None, b: GaussianParams) -> GaussianParams:
@@ -61,7 +63,12 @@ class ArticulationResult:
             ``seeded`` (new part and interior ones), ``seeded_background`` (new background
             ones where the static recording saw nothing), ``pruned``.
         losses: ``[steps]`` loss per step over both phases.
-        seconds: wall time of ``partition``, ``seed``, ``phase1``, ``phase2``, ``evaluate``.
+        seconds: wall time of ``partition``, ``seed``, ``phase1``, ``phase2``, ``evaluate``
+            (and ``camera`` when the dynamic recording's camera is modelled).
+        camera: the dynamic recording's own camera (``config.camera_effects``), fitted on its
+            training frames against the final twin; None when not modelled. Render the twin
+            through it (``SensorModel.apply_rgb`` at the frame's position) to predict that
+            recording's frames; held-out frames get interpolated gains.
     """
 
     params: GaussianParams
@@ -75,6 +82,45 @@ class ArticulationResult:
     counts: dict[str, int]
     losses: np.ndarray
     seconds: dict[str, float]
+    camera: SensorModel | None = None
+
+
+CAMERA_FIT_MAX_SIDE = 256
+
+
+def fit_dynamic_camera(
+    params: GaussianParams,
+    joints: Sequence[Joint],
+    dynamic: Capture,
+    world_from_camera: np.ndarray,
+    masks: MaskSequence,
+    frames: Sequence[int],
+    config: ArticulationConfig,
+    appearance: PartAppearance | None = None,
+) -> SensorModel:
+    """The dynamic recording's camera (``config.camera_effects``) against the twin ``params``
+    rendered at ``frames`` with the parts at their states: fitted on the background pixels the
+    twin covers (the hand and the part, grown by ``region_dilate_px``, left out)."""
+    frames = sorted(int(f) for f in frames)
+    # A few gains per frame need few pixels: render and fit at most CAMERA_FIT_MAX_SIDE on the long
+    # side (the model is resolution-free: gains per frame, vignetting over the normalised radius).
+    if max(dynamic.rgb_size) > CAMERA_FIT_MAX_SIDE:
+        dynamic = downscale_rgb(dynamic, CAMERA_FIT_MAX_SIDE)
+        masks = downscale_masks(masks, dynamic.rgb_size)
+    twin = TwinRenderer(params, joints, backend=config.backend, appearance=appearance)
+    w, h = dynamic.rgb_size
+    pred, valid = [], []
+    for t in frames:
+        colour, _, alpha = twin.render([float(j.q[t]) for j in joints], world_from_camera[t], dynamic.rgb_intrinsics[t], w, h)
+        moving = (np.asarray(masks.part[t]) > 0) | np.asarray(masks.hand[t], bool)
+        if config.region_dilate_px > 0 and moving.any():
+            moving = binary_dilation(moving, iterations=config.region_dilate_px)
+        pred.append(np.clip(colour, 0.0, 1.0))
+        valid.append((alpha >= 0.95) & ~moving)
+    return fit_recording_camera(
+        np.stack(pred), dynamic.rgb[frames], np.stack(valid), frames, dynamic.rgb_intrinsics[frames],
+        CameraFitConfig(effects=tuple(config.camera_effects)),
+    )
 
 
 def dynamic_views(
@@ -210,6 +256,18 @@ def articulate(
     labelled = replace(canonical, labels=votes.labels)
     seconds["partition"] = time.perf_counter() - t0
 
+    measured = dynamic
+    if config.camera_effects and train_frames:
+        # Train on the dynamic frames as the twin's (the static recording's) camera would have
+        # recorded them: the camera fitted against the partitioned twin taken out.
+        t0 = time.perf_counter()
+        first = fit_dynamic_camera(labelled, joints, dynamic, dyn_poses, masks, train_frames, config)
+        rgb = dynamic.rgb.copy()
+        rgb[train_frames] = remove_camera(dynamic.rgb[train_frames], first, train_frames, dynamic.rgb_intrinsics[train_frames])
+        dynamic = replace(dynamic, rgb=rgb)
+        train_av = dynamic_views(dynamic, dyn_poses, masks, joints, train_frames, dev)
+        seconds["camera"] = time.perf_counter() - t0
+
     t0 = time.perf_counter()
     psnr_canonical = heldout(replace(canonical, labels=np.zeros_like(votes.labels)), joints)
     psnr_partitioned = heldout(labelled, joints)
@@ -260,6 +318,12 @@ def articulate(
     t0 = time.perf_counter()
     psnr_final = heldout(params, joints, state.appearance()) if config.phase2_steps > 0 else psnr_phase1
     seconds["evaluate"] += time.perf_counter() - t0
+    camera = None
+    if config.camera_effects and train_frames:
+        # The camera of the final twin, against the frames as measured.
+        t0 = time.perf_counter()
+        camera = fit_dynamic_camera(params, joints, measured, dyn_poses, masks, train_frames, config, state.appearance())
+        seconds["camera"] += time.perf_counter() - t0
     counts = label_counts(params.labels, len(joints))
     counts["seeded"] = seeds.num_gaussians
     counts["seeded_background"] = 0 if bg_seeds is None else bg_seeds.num_gaussians
@@ -276,4 +340,5 @@ def articulate(
         counts=counts,
         losses=np.asarray(state.losses),
         seconds=seconds,
+        camera=camera,
     )

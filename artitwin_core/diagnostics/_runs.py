@@ -94,11 +94,66 @@ class CurveChange:
 
 @dataclass(frozen=True)
 class RunComparison:
+    """``lead``: one line per residual the effects B adds target (did the loop work), then one per
+    other curve that rose beyond its noise (a regression of the modelling); ``conclusion``: the rest."""
+
     a: RunRecord
     b: RunRecord
     metrics: list[MetricChange]
     curves: list[CurveChange]
     conclusion: list[str]
+    lead: list[str] = field(default_factory=list)
+    regressions: list[str] = field(default_factory=list)
+
+
+# A change in a curve is beyond noise when its mean per-frame change exceeds both this many
+# standard errors of the per-frame changes and this share of its level in run A (a retrained
+# twin differs from run to run by a few per cent on every frame alike, which the per-frame
+# scatter does not see).
+NOISE_SE = 2.0
+NOISE_REL = 0.05
+
+
+def curve_shift(a: RunRecord, b: RunRecord, name: str) -> tuple[float, float, int, bool] | None:
+    """``(mean A, mean B, frames, beyond noise)`` of curve ``name`` over its held-out frames (all
+    frames when none is known held out); None when either run lacks it."""
+    if name not in a.per_frame or name not in b.per_frame:
+        return None
+    ca, cb = np.asarray(a.per_frame[name], float), np.asarray(b.per_frame[name], float)
+    if ca.shape != cb.shape:
+        return None
+    held = [f for f in a.heldout.get(name, []) if f < ca.size] or list(range(ca.size))
+    idx = np.asarray(held, int)
+    ok = idx[np.isfinite(ca[idx]) & np.isfinite(cb[idx])]
+    if ok.size == 0:
+        return None
+    d = cb[ok] - ca[ok]
+    se = float(d.std(ddof=1) / np.sqrt(ok.size)) if ok.size > 1 else float("inf")
+    ma, mb = float(ca[ok].mean()), float(cb[ok].mean())
+    beyond = abs(mb - ma) > max(NOISE_SE * se, NOISE_REL * abs(ma))
+    return ma, mb, int(ok.size), bool(beyond)
+
+
+def _lead(a: RunRecord, b: RunRecord, targets, others) -> tuple[list[str], list[str]]:
+    lead, regressions = [], []
+    for label, name, effect in targets:
+        shift = curve_shift(a, b, name)
+        if shift is None:
+            lead.append(f"{label}: not measured in both runs ({name}); the effect {effect} cannot be judged.")
+            continue
+        ma, mb, n, beyond = shift
+        verdict = ("the loop worked" if mb < ma else "it rose: the modelling made it worse") if beyond else "no change beyond noise"
+        lead.append(f"{label}, held-out: {ma:.3g} -> {mb:.3g}, {_pct(ma, mb)} over {n} frames ({effect}: {verdict}).")
+    targeted = {name for _, name, _ in targets}
+    for label, name in others:
+        if name in targeted:
+            continue
+        shift = curve_shift(a, b, name)
+        if shift is not None and shift[3] and shift[1] > shift[0]:
+            ma, mb, n, _ = shift
+            regressions.append(f"regression of the modelling: {label}, held-out: {ma:.3g} -> {mb:.3g}, {_pct(ma, mb)} "
+                               f"over {n} frames (beyond its noise).")
+    return lead, regressions
 
 
 def _mean(x: np.ndarray, idx) -> float:
@@ -113,8 +168,14 @@ def _pct(a: float, b: float) -> str:
     return f"{100 * (b - a) / abs(a):+.0f}%"
 
 
-def compare_runs(a: RunRecord, b: RunRecord) -> RunComparison:
-    """Compare run ``b`` against run ``a`` (``a`` is "before")."""
+def compare_runs(a: RunRecord, b: RunRecord, targets=(), others=()) -> RunComparison:
+    """Compare run ``b`` against run ``a`` (``a`` is "before").
+
+    ``targets``: ``(label, curve, effect)`` for each residual the effects ``b`` adds are meant to
+    cut (``("dynamic recording, photometric", "diagnose/dynamic recording/rgb_rms",
+    "dynamic:exposure_white_balance")``): the comparison leads with them, on held-out frames.
+    ``others``: ``(label, curve)`` of every other scope's curves: one that rises beyond its noise
+    (``curve_shift``) is reported as a regression of the modelling."""
     metrics = []
     for name in sorted(set(a.metrics) & set(b.metrics)):
         d = better_direction(name)
@@ -143,7 +204,8 @@ def compare_runs(a: RunRecord, b: RunRecord) -> RunComparison:
             _mean(ca, held), _mean(cb, held), worst, _mean(ca, worst), _mean(cb, worst),
             _mean(ca, rest), _mean(cb, rest),
         ))  # fmt: skip
-    return RunComparison(a, b, metrics, curves, _conclusion(a, b, metrics, curves))
+    lead, regressions = _lead(a, b, list(targets), list(others))
+    return RunComparison(a, b, metrics, curves, _conclusion(a, b, metrics, curves), lead, regressions)
 
 
 def _conclusion(a: RunRecord, b: RunRecord, metrics: list[MetricChange], curves: list[CurveChange]) -> list[str]:
@@ -179,6 +241,7 @@ def comparison_html(cmp: RunComparison, title: str = "ArtiTwin run comparison") 
     body = [f"<h1>{html.escape(title)}</h1>",
             f"<p>A = <b>{html.escape(a.name)}</b> (effects: {html.escape(', '.join(a.effects) or 'none')}); "
             f"B = <b>{html.escape(b.name)}</b> (effects: {html.escape(', '.join(b.effects) or 'none')}).</p><ul>"]
+    body += [f"<li><b>{html.escape(line)}</b></li>" for line in cmp.lead + cmp.regressions]
     body += [f"<li>{html.escape(line)}</li>" for line in cmp.conclusion]
     body.append("</ul><h2>Metrics</h2><table border=1 cellpadding=3 style='border-collapse:collapse'>"
                 "<tr><th>metric</th><th>A</th><th>B</th><th>change</th><th>better is</th><th></th></tr>")

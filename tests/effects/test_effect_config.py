@@ -13,7 +13,8 @@ def test_with_effects_changes_only_the_modelling_stage():
     cfg = base.with_effects(["vignetting", "exposure_white_balance", "screw_joint"])
     assert cfg.reconstruct.sensor_effects == ["exposure_white_balance", "vignetting"]
     assert cfg.fit_joints.model_screw
-    assert cfg.enabled_effects() == ["exposure_white_balance", "screw_joint", "vignetting"]
+    # A bare camera effect with no diagnosis to place it is the static recording's (as before scopes).
+    assert cfg.enabled_effects() == ["screw_joint", "static:exposure_white_balance", "static:vignetting"]
     for name in ("ingest", "refine_poses", "registration", "part_masks", "track", "articulate", "diagnose"):
         assert getattr(cfg, name) == getattr(base, name), name
     assert cfg.reconstruct.steps == base.reconstruct.steps  # the rest of the stage config is kept
@@ -43,7 +44,7 @@ def test_prefect_ui_summary_lists_the_ranking_and_the_rerun_command():
     )
     text = "\n".join(diagnosis_markdown(report))
     assert "| 1 | static recording | exposure_white_balance | photometric | 90% | yes | yes |" in text
-    assert "--effect exposure_white_balance" in text
+    assert "--effect static:exposure_white_balance" in text
     assert "--effect axis_tilt" not in text  # no stage models it: not offered as a rerun
     assert "exposure explains 90%" in text
 
@@ -74,7 +75,56 @@ def test_the_rerun_command_carries_the_fitted_time_offset():
                         energy_before=1.0, energy_after=0.6, significant=True, enabled=True,
                         params={"seconds": 0.0331, "median_speed_px_per_s": 40.0})
     report = DiagnosisReport(findings=[lag], enabled=["dynamic recording/time_offset"], conclusion=[])
-    assert rerun_effects(report, []) == (["time_offset=0.0331"], [])
+    assert rerun_effects(report, []) == (["dynamic:time_offset=0.0331"], [])
     assert rerun_effects(report, ["time_offset=0.0331"]) == ([], [])  # already modelled
-    assert "--effect time_offset=0.0331" in "\n".join(diagnosis_markdown(report))
+    assert "--effect dynamic:time_offset=0.0331" in "\n".join(diagnosis_markdown(report))
     PipelineConfig().with_effects(rerun_effects(report, [])[0])  # what it offers is accepted
+
+
+def test_an_effect_is_modelled_in_the_scope_it_is_named_with():
+    base = PipelineConfig.preset("quick")
+    cfg = base.with_effects(["dynamic:exposure_white_balance", "static:vignetting", "joint_0:screw_joint"])
+    assert cfg.articulate.sensor_effects == ["exposure_white_balance"]  # stage IV, the dynamic recording
+    assert cfg.reconstruct.sensor_effects == ["vignetting"]  # reconstruct, the static recording
+    assert cfg.fit_joints.model_screw
+    assert cfg.enabled_effects() == ["dynamic:exposure_white_balance", "screw_joint", "static:vignetting"]
+    assert cfg.with_effects(cfg.enabled_effects()) == cfg  # the inverse round-trips
+    only_dynamic = base.with_effects(["dynamic recording:vignetting"])  # the diagnosis's own scope names work too
+    assert only_dynamic.reconstruct == base.reconstruct and only_dynamic.articulate.sensor_effects == ["vignetting"]
+    for bad, says in (("dynmaic:vignetting", "unknown scope 'dynmaic'.*static, dynamic or a joint"),
+                      ("dynamic:depth_scale_offset", "can be modelled in static, not in dynamic"),
+                      ("joint_0:exposure_white_balance", "static, dynamic, not in joint_0"),
+                      ("static:screw_joint", "a joint")):
+        with pytest.raises(ValueError, match=says):
+            base.with_effects([bad])
+    with pytest.raises(ValueError, match="sensor_effects"):  # the stage config names its valid choices
+        PipelineConfig.model_validate({"articulate": {"sensor_effects": ["depth_scale_offset"]}})
+
+
+def test_the_rerun_command_names_the_scope_the_diagnosis_found():
+    from flows._runs import rank_findings, rerun_effects, scope_bare_effects
+
+    def finding(name, scope, target, frac, enabled):
+        return EffectFinding(name=name, scope=scope, target=target, explained_frac=frac, energy_before=1.0,
+                             energy_after=1.0 - frac, significant=enabled, enabled=enabled)
+
+    report = DiagnosisReport(
+        findings=[finding("vignetting", "static recording", "photometric", 0.05, False),
+                  finding("screw_joint", "joint_0", "joint-tracks", 0.5, True),
+                  finding("exposure_white_balance", "dynamic recording", "photometric", 0.77, True),
+                  finding("depth_scale_offset", "dynamic recording", "depth", 0.4, True)],
+        enabled=["joint_0/screw_joint", "dynamic recording/exposure_white_balance", "dynamic recording/depth_scale_offset"],
+    )
+    flags, cannot = rerun_effects(report, [])
+    assert flags == ["dynamic:exposure_white_balance", "joint_0:screw_joint"]
+    assert cannot == ["depth_scale_offset (dynamic recording: modelled only in the static scope)"]
+    # Modelled in the static recording is not modelled in the dynamic one: still offered.
+    assert rerun_effects(report, ["exposure_white_balance", "screw_joint"])[0] == ["dynamic:exposure_white_balance"]
+    assert rerun_effects(report, ["dynamic:exposure_white_balance", "screw_joint"])[0] == []
+    # A bare name goes where the diagnosis found it; without one, to the static recording.
+    assert scope_bare_effects(["exposure_white_balance", "static:vignetting"], report) == [
+        "dynamic:exposure_white_balance", "static:vignetting"]
+    assert scope_bare_effects(["exposure_white_balance"], None) == ["exposure_white_balance"]
+    # One ranking over every scope: the enabled dynamic finding first, the disabled static one last.
+    assert [f.name for f in rank_findings(report.findings)] == [
+        "exposure_white_balance", "screw_joint", "depth_scale_offset", "vignetting"]

@@ -94,7 +94,7 @@ def test_modelling_the_effect_lowers_the_error_it_targets_and_the_heldout_error(
 def test_compare_reports_the_fall_on_training_and_heldout_frames(two_runs):
     root, _, _, _ = two_runs
     cmp = compare_run_folders(root / "a", root / "b", root / "compare.html")
-    assert run_record(root / "b").effects == [EFFECT]
+    assert run_record(root / "b").effects == [f"static:{EFFECT}"]
     psnr = next(m for m in cmp.metrics if m.name == "reconstruct_report/heldout_psnr_db")
     assert psnr.improved and psnr.direction == 1
     rgb = next(c for c in cmp.curves if c.name == f"diagnose/{STATIC}/rgb_rms")

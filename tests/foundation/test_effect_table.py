@@ -10,7 +10,7 @@ from typing import get_args
 
 from schemas import PipelineConfig
 from schemas._configs import EFFECT_STAGES, EFFECT_VALUES
-from schemas._effects import MODELLED, MODELLED_EFFECTS, SensorEffect
+from schemas._effects import MODELLED, MODELLED_EFFECTS, PER_RECORDING_EFFECTS, SensorEffect
 
 DOCS = Path(__file__).resolve().parents[2] / "docs"
 
@@ -24,7 +24,9 @@ def _table_names(text: str, heading: str) -> list[str]:
         if not line.startswith("|"):
             break
         table.append(line)
-    return [m.group(1).split("=")[0] for m in (re.match(r"^\| `([^`]+)` \|", row) for row in table) if m]
+    # Each row's first cell names one or more effects, maybe with a scope (`dynamic:vignetting`).
+    names = [re.findall(r"`([^`]+)`", row.split("|")[1]) for row in table]
+    return list(dict.fromkeys(n.split("=")[0].rpartition(":")[2] for row in names for n in row))
 
 
 def test_every_modelled_effect_sets_a_field_of_its_stage_config():
@@ -32,9 +34,16 @@ def test_every_modelled_effect_sets_a_field_of_its_stage_config():
         config = getattr(PipelineConfig(), e.stage)
         assert e.field in type(config).model_fields, e
         assert set(e.also) <= set(type(config).model_fields), e
-        enabled = PipelineConfig().with_effects([f"{e.name}=0.01" if e.param else e.name])
-        assert enabled.enabled_effects() == [f"{e.name}=0.01" if e.param else e.name]
-    assert EFFECT_STAGES == {e.name: e.stage for e in MODELLED_EFFECTS}
+        entry = f"{e.name}=0.01" if e.param else e.name
+        if e.name in PER_RECORDING_EFFECTS:  # one row per recording: named with its scope
+            entry = f"{e.scopes[0]}:{entry}"
+        enabled = PipelineConfig().with_effects([entry])
+        assert getattr(getattr(enabled, e.stage), e.field) not in (False, [], 0.0), e  # this row's stage took it
+        assert enabled.enabled_effects() == [entry]
+    # Each effect's default scope is its first row; a bare name goes there.
+    assert EFFECT_STAGES == {name: e.stage for name, e in MODELLED.items()}
+    assert PER_RECORDING_EFFECTS == ("exposure_white_balance", "vignetting")
+    assert PipelineConfig().with_effects(["vignetting"]).enabled_effects() == ["static:vignetting"]
     assert EFFECT_VALUES == {"time_offset": ("seconds", "rgb_time_offset_s")}
 
 
@@ -51,7 +60,7 @@ def test_the_docs_tables_list_the_effects():
     from artitwin_core.diagnostics import registered_effects
 
     modelled = _table_names((DOCS / "add_and_rerun.md").read_text(), "## Which effects can be modelled")
-    assert sorted(modelled) == sorted(MODELLED)
+    assert sorted(modelled) == sorted(MODELLED)  # names, whatever their scopes
     built_in = _table_names((DOCS / "effects.md").read_text(), "## Built-in effects")
     assert sorted(built_in) == sorted(registered_effects())
 

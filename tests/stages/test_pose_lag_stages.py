@@ -122,6 +122,6 @@ def test_summary_and_diagnosis_report_the_lag_and_whether_it_was_corrected(captu
     findings, lines = pose_lag_finding(held, DYNAMIC_SCOPE)
     assert findings[0].enabled and "--effect pose_lag" in lines[0]
     report = DiagnosisReport(findings=findings, enabled=[f"{DYNAMIC_SCOPE}/pose_lag"], conclusion=lines)
-    assert rerun_effects(report, []) == (["pose_lag"], [])
+    assert rerun_effects(report, []) == (["dynamic:pose_lag"], [])  # in the scope it was found in
     config = PipelineConfig().with_effects(["pose_lag"])
     assert config.pose_lag.model and config.pose_lag.correct and config.enabled_effects() == ["pose_lag"]

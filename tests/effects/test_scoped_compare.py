@@ -1,0 +1,48 @@
+"""`artitwin compare` leads with the residual the new effect targets, in its scope, on held-out
+frames, and flags a rise beyond noise in any other scope as a regression of the modelling."""
+
+from __future__ import annotations
+
+import numpy as np
+
+from artitwin_core.diagnostics._runs import RunRecord, compare_runs, curve_shift
+from flows._runs import comparison_targets
+
+DYN, STAT = "diagnose/dynamic recording/rgb_rms", "diagnose/static recording/rgb_rms"
+
+
+def _record(name, effects, dyn, stat):
+    held = list(range(0, 20, 5))
+    return RunRecord(name=name, effects=effects, per_frame={DYN: list(dyn), STAT: list(stat)},
+                     heldout={DYN: held, STAT: held})
+
+
+def test_compare_leads_with_the_targeted_residual_and_flags_other_scopes():
+    rng = np.random.default_rng(0)
+    dyn_a = 0.08 + 0.005 * rng.standard_normal(20)
+    stat = 0.03 + 0.001 * rng.standard_normal(20)
+    a = _record("a", [], dyn_a, stat)
+    # The effect cuts the dynamic residual; the static one is untouched up to noise.
+    b = _record("b", ["dynamic:exposure_white_balance"], 0.4 * dyn_a, stat + 0.0005 * rng.standard_normal(20))
+    targets, others = comparison_targets(a, b)
+    assert targets == [("dynamic recording, photometric (rgb_rms)", DYN, "dynamic:exposure_white_balance")]
+    cmp = compare_runs(a, b, targets, others)
+    assert cmp.lead[0].startswith("dynamic recording, photometric (rgb_rms), held-out: 0.0") and "-60%" in cmp.lead[0]
+    assert "the loop worked" in cmp.lead[0] and cmp.regressions == []
+    # Modelled in the wrong scope: the static twin worse by 25 %, the dynamic one unchanged.
+    c = _record("c", ["static:exposure_white_balance"], dyn_a + 0.0005 * rng.standard_normal(20), 1.25 * stat)
+    cmp = compare_runs(a, c, *comparison_targets(a, c))
+    assert "static recording, photometric" in cmp.lead[0] and "made it worse" in cmp.lead[0], cmp.lead
+    # (the static curve is the target here, so no separate regression line for it; the dynamic one did not move)
+    assert cmp.regressions == []
+    d = _record("d", ["dynamic:exposure_white_balance"], dyn_a, 1.25 * stat)
+    cmp = compare_runs(a, d, *comparison_targets(a, d))
+    assert "no change beyond noise" in cmp.lead[0]
+    assert len(cmp.regressions) == 1 and "static recording, rgb_rms" in cmp.regressions[0] and "+25%" in cmp.regressions[0]
+
+
+def test_noise_is_judged_on_the_heldout_frames():
+    a = _record("a", [], np.full(20, 0.05), np.full(20, 0.03))
+    b = _record("b", [], np.full(20, 0.051), np.full(20, 0.03))  # +2 %: within the 5 % floor
+    ma, mb, n, beyond = curve_shift(a, b, DYN)
+    assert n == 4 and not beyond and mb > ma
