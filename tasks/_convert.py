@@ -66,7 +66,8 @@ class ConfigMap:
 
     def home_names(self, home: Home) -> dict[str, str]:
         try:
-            return dict(self.homes[home])
+            # A decorated core function (functools.wraps) is the function it wraps.
+            return dict(self.homes[inspect.unwrap(home) if callable(home) and not isinstance(home, type) else home])
         except KeyError:
             raise TypeError(
                 f"{self.stage.__name__} declares no fields for {_name(home)}; its homes are "

@@ -3,6 +3,7 @@ stage still leaves a summary with the static recording's diagnosis (inline execu
 
 from __future__ import annotations
 
+import functools
 import json
 import re
 from dataclasses import replace
@@ -45,6 +46,7 @@ def test_untrackable_and_depthless_candidates_are_dropped_not_exported(tiny_scen
 
     real = register.segment_parts
 
+    @functools.wraps(real)
     def with_spurious_parts(dynamic, *args, **kwargs):
         seg = real(dynamic, *args, **kwargs)
         part = seg.masks.part.copy()
