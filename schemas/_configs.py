@@ -473,8 +473,10 @@ class PipelineConfig(StageConfig):
         for name in names:
             # An effect with a model per recording goes to each recording asked for; others to their one row.
             kinds = sorted(scoped.get(name, ())) if name in PER_RECORDING_EFFECTS else [DEFAULT_SCOPES[name]]
-            for effect in (modelled_in(name, kind) for kind in kinds):
-                assert effect is not None  # split_effect checked the scope against EFFECT_SCOPES
+            for kind in kinds:
+                effect = modelled_in(name, kind)
+                if effect is None:  # split_effect checks scopes; a bare name takes its default
+                    raise ValueError(f"{name} cannot be modelled in the {kind} scope; it can in {EFFECT_SCOPES[name]}")
                 current = update.get(effect.stage, getattr(self, effect.stage))
                 now = getattr(current, effect.field)
                 if isinstance(now, list):
