@@ -53,7 +53,7 @@ def rerun_effects(report: DiagnosisReport, modelled: list[str]) -> tuple[list[st
     run already ``modelled`` (``PipelineConfig.enabled_effects``); and the enabled effects no stage
     models there, with their scope. An effect that takes a value gets the one the diagnosis fitted
     (``time_offset=0.033``)."""
-    from schemas._configs import EFFECT_SCOPES, EFFECT_STAGES, effect_scope
+    from schemas._configs import EFFECT_SCOPES, EFFECT_STAGES, effect_scope, scope_kind
     from schemas._effects import MODELLED
 
     have = {_canonical(m) for m in modelled}
@@ -64,7 +64,7 @@ def rerun_effects(report: DiagnosisReport, modelled: list[str]) -> tuple[list[st
             short = effect_scope(scope) if scope else None
         except ValueError:
             short = None
-        kind = "joint" if short and short.startswith("joint_") else short
+        kind = scope_kind(short) if short else None
         if name not in EFFECT_STAGES:
             cannot.append(name if not scope else f"{name} ({scope})")
             continue

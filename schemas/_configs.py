@@ -334,6 +334,11 @@ def effect_scope(scope: str) -> str:
     )
 
 
+def scope_kind(scope: str) -> str:
+    """The kind of an ``--effect`` scope as ``EFFECT_SCOPES`` lists it: ``joint_0`` -> ``joint``."""
+    return "joint" if scope.startswith("joint_") else scope
+
+
 def split_effect(entry: str) -> tuple[str | None, str, str | None]:
     """``(scope or None, name, value or None)`` of an ``--effect`` entry ``[SCOPE:]NAME[=VALUE]``;
     the scope is checked (``effect_scope``) and must be one the effect can be modelled in."""
@@ -342,7 +347,7 @@ def split_effect(entry: str) -> tuple[str | None, str, str | None]:
     if not colon:
         return None, name, raw if sep else None
     short = effect_scope(scope)
-    kind = "joint" if short.startswith("joint_") else short
+    kind = scope_kind(short)
     valid = EFFECT_SCOPES.get(name)
     if valid is not None and kind not in valid:
         where = ", ".join("a joint (joint_0, ...)" if v == "joint" else v for v in valid)
