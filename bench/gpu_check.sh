@@ -2,7 +2,7 @@
 # The GPU check of issue 25, for the device machine: build gsplat, run the gpu-marked tests, run the
 # end-to-end benchmark on one scene with the GPU preset. Prepared here by bench/gpu_check_prepare.py,
 # which packs what the device image lacks into .whl/1, .whl/2, ... (64 MiB a call; open3d alone is
-# 100 MB). One device call per part, in order, on one warm machine, each the same command:
+# 100 MB, carried as a 41 MB xz tarball). One device call per part, in order, on one warm machine, each the same command:
 #
 #     run(command="bash bench/gpu_check.sh", carry=[".whl/N"], timeout_s=540)
 #
@@ -61,6 +61,33 @@ if [ ${#todo[@]} -gt 0 ]; then
       else log "FAILED to install $(basename "$whl") (see pip.log)"; fi
     done
   fi
+fi
+# System libraries open3d links (libGL, libX11, libudev, ...): only those the image lacks go on
+# LD_LIBRARY_PATH, so none of the image's own is shadowed.
+if [ -f "$STASH/syslibs.tar.xz" ]; then
+  mkdir -p "$STASH/syslib/all" "$STASH/syslib/use"
+  if [ ! -f "$STASH/syslibs.tar.xz.installed" ] && tar -xJf "$STASH/syslibs.tar.xz" -C "$STASH/syslib/all"; then
+    for lib in "$STASH"/syslib/all/*; do
+      name=$(basename "$lib")
+      ldconfig -p | awk '{print $1}' | grep -qxF "$name" || ln -sf "$PWD/$lib" "$STASH/syslib/use/$name"
+    done
+    touch "$STASH/syslibs.tar.xz.installed"; log "system libraries the image lacks: $(ls "$STASH/syslib/use" | tr '\n' ' ')"
+  fi
+  export LD_LIBRARY_PATH="$PWD/$STASH/syslib/use${LD_LIBRARY_PATH:+:$LD_LIBRARY_PATH}"
+fi
+# Tarballs (open3d, slimmed by gpu_check_prepare.slim_open3d) unpack straight into the site folder.
+for tarball in "$STASH"/*.tar.xz; do
+  [ "$(basename "$tarball")" != syslibs.tar.xz ] && [ -f "$tarball" ] && [ ! -f "$tarball.installed" ] || continue
+  if tar -xJf "$tarball" -C "$SITE"; then touch "$tarball.installed"; log "unpacked $(basename "$tarball")"
+  else log "FAILED to unpack $(basename "$tarball")"; fi
+done
+# open3d.visualization imports its plotly drawing (plotly, dash), which the image lacks and the
+# pipeline never calls: a stand-in module whose every name raises when called.
+if [ -f "$SITE/open3d/visualization/draw_plotly.py" ] && ! "$PY" -c "import plotly, dash" >/dev/null 2>&1 \
+   && ! grep -q _missing "$SITE/open3d/visualization/draw_plotly.py"; then
+  printf 'def _missing(*a, **k):\n    raise ImportError("plotly and dash are not installed here")\n\n\ndef __getattr__(name):\n    if name.startswith("__"):\n        raise AttributeError(name)\n    return _missing\n' \
+    > "$SITE/open3d/visualization/draw_plotly.py"
+  log "open3d's plotly drawing stubbed (plotly and dash are not in the image)"
 fi
 # The export stage is skipped (usd-core and coacd are not carried), but importing the stages imports
 # its module, which imports pxr: an empty stand-in lets that import succeed (never called).
@@ -121,7 +148,7 @@ if [ -d "$STASH/scene" ] && has open3d && has pycolmap && has pydantic && has za
   if [ "$gpu" = 1 ] && [ -f "$STASH/gsplat.built" ]; then
     log "end-to-end benchmark on $STASH/scene (GPU preset)"
     "$PY" bench/bench_end_to_end.py --scenes a-door --scene-dir "$STASH/scene" --skip-stages export \
-      --workdir "$STASH/e2e" --name end_to_end_gpu 2>&1 | tee "$OUT/end_to_end.log" | tail -40
+      --workers "${E2E_WORKERS:-4}" --workdir "$STASH/e2e" --name end_to_end_gpu 2>&1 | tee "$OUT/end_to_end.log" | tail -40
     cp bench/results/end_to_end_gpu.json "$OUT/" 2>/dev/null
   else
     log "end-to-end benchmark skipped: no CUDA device or gsplat not built (dry run)"
