@@ -276,7 +276,7 @@ def _icp_point_to_plane(
     prev = None
     for _ in range(max_iterations):
         p = src @ t[:3, :3].T + t[:3, 3]
-        d, nn = tree.query(p, distance_upper_bound=max_dist_m)
+        d, nn = tree.query(p, distance_upper_bound=max_dist_m, workers=-1)
         ok = np.isfinite(d)
         if ok.sum() < 6:
             break

@@ -58,8 +58,12 @@ def motion_score(
     pts, changed, tree = _frame_cloud(view, config)
     if tree is None:
         return -config.violation_weight * through, 0, through
-    dist, nn = tree.query(moved[idx], distance_upper_bound=0.2)
-    near = dist < config.support_distance_m + 0.005 * z[idx] ** 2
+    # A sample supports only with an observed point nearer than its reach (never beyond 0.2 m), so
+    # the search stops there: samples far from every observation (a wrong state) cost no more than
+    # near ones. The result is the same as with the 0.2 m bound.
+    reach = config.support_distance_m + 0.005 * z[idx] ** 2
+    dist, nn = tree.query(moved[idx], distance_upper_bound=min(0.2, float(reach.max())))
+    near = dist < reach
     still = np.linalg.norm(moved[idx] - closed[idx], axis=1) < 0.03
     support = int(np.sum(near & (still | changed[np.minimum(nn, len(changed) - 1)])))
     return support - config.violation_weight * through, support, through

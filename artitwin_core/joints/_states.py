@@ -109,7 +109,7 @@ def _frame_cost(
     inlier residuals ``[Q]`` metres.
     """
     q_count, n = closed.shape[:2]
-    dist, idx = model.tree.query(closed.reshape(-1, 3), k=1, distance_upper_bound=cfg.gate_m)
+    dist, idx = model.tree.query(closed.reshape(-1, 3), k=1, distance_upper_bound=cfg.gate_m, workers=-1)
     dist = dist.reshape(q_count, n)
     near = np.isfinite(dist)
     idx = np.where(near.reshape(-1), idx, 0).reshape(q_count, n)

@@ -110,8 +110,9 @@ def to_closed(joint: Joint, pts: np.ndarray, q: np.ndarray) -> np.ndarray:
 def cloud_normals(points: np.ndarray, cfg: StateRefineConfig) -> np.ndarray:
     """Unsigned PCA normals ``[N, 3]`` of one frame's points ``[N, 3]``."""
     k = min(cfg.frame_normal_neighbours, points.shape[0])
-    _, nn = cKDTree(points).query(points, k=k)
-    nb = points[nn] - points[nn].mean(1, keepdims=True)
+    _, nn = cKDTree(points).query(points, k=k, workers=-1)
+    near = points[nn]
+    nb = near - near.mean(1, keepdims=True)
     return np.linalg.eigh(np.einsum("mki,mkj->mij", nb, nb))[1][:, :, 0]
 
 
@@ -134,9 +135,10 @@ def build_model(points: np.ndarray, views: np.ndarray, cfg: StateRefineConfig) -
     if merged.shape[0] < cfg.normal_neighbours:
         return None
     tree = cKDTree(merged)
-    _, nn = tree.query(merged, k=cfg.normal_neighbours)
-    centroid = merged[nn].mean(1)
-    nb = merged[nn] - centroid[:, None, :]
+    _, nn = tree.query(merged, k=cfg.normal_neighbours, workers=-1)
+    near = merged[nn]
+    centroid = near.mean(1)
+    nb = near - centroid[:, None, :]
     cov = np.einsum("mki,mkj->mij", nb, nb)
     _, vecs = np.linalg.eigh(cov)
     normals = vecs[:, :, 0]

@@ -150,7 +150,7 @@ def evidence(
     """Classify ``points [N, 3]`` (already in the other recording's world frame) against its
     surface ``target`` (point-to-plane within ``inlier_m``, nearest neighbour within
     ``3 * inlier_m``) and its views' free space (``margin_m`` in front of the measured depth)."""
-    dist, idx = target.tree.query(points, distance_upper_bound=3 * inlier_m)
+    dist, idx = target.tree.query(points, distance_upper_bound=3 * inlier_m, workers=-1)
     ok = np.isfinite(dist)
     agree = np.zeros(len(points), bool)
     plane = np.einsum("ij,ij->i", points[ok] - target.points[idx[ok]], target.normals[idx[ok]])
@@ -251,7 +251,7 @@ def score_hypothesis(
             if rc is not None:
                 colour.append((w[i] * ev.agree, *rc))
     points = np.concatenate(agreed) if agreed else np.zeros((0, 3))
-    _, idx = data.static_surface.tree.query(points)
+    _, idx = data.static_surface.tree.query(points, workers=-1)
     constraint, _ = weakest_constraint(points, data.static_surface.normals[idx], up)
     cw, cr, cc = np.array(colour).T if colour else (np.zeros(1), np.full(1, np.nan), np.zeros(1))
     return HypothesisScore(

@@ -98,7 +98,7 @@ def plane_system(
     frame) against ``target``: nearest neighbours within ``max_distance_m``, a Tukey kernel of
     width ``kernel_m`` on the residual. None when fewer than 10 points match or none is weighted."""
     up = np.asarray(up, dtype=np.float64)
-    dist, idx = target.tree.query(points, distance_upper_bound=max_distance_m)
+    dist, idx = target.tree.query(points, distance_upper_bound=max_distance_m, workers=-1)
     ok = np.isfinite(dist)
     if ok.sum() < 10:
         return None
@@ -167,7 +167,7 @@ def gravity_icp(
         if angle < tolerance and np.linalg.norm(x[-3:]) < tolerance:
             break
     p = src @ transform[:3, :3].T + transform[:3, 3]
-    dist, idx = target.tree.query(p, distance_upper_bound=max_distance_m)
+    dist, idx = target.tree.query(p, distance_upper_bound=max_distance_m, workers=-1)
     ok = np.isfinite(dist)
     r = np.einsum("ij,ij->i", p[ok] - target.points[idx[ok]], target.normals[idx[ok]])
     return IcpResult(

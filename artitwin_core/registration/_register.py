@@ -99,7 +99,7 @@ def _consistent_frames(static_tree: cKDTree, dynamic: Capture, transform: np.nda
         if len(p) == 0:
             far[t] = 1.0
             continue
-        d, _ = static_tree.query(p @ transform[:3, :3].T + transform[:3, 3])
+        d, _ = static_tree.query(p @ transform[:3, :3].T + transform[:3, 3], workers=-1)
         far[t] = float(np.mean(d > 0.05))
     keep = np.nonzero(far <= far.min() + cfg.consistent_frame_margin)[0]
     if len(keep) < cfg.min_consistent_frames:
@@ -392,7 +392,7 @@ def _spatial_blocks(points: np.ndarray, blocks: int) -> np.ndarray:
     centres = points[rng.choice(len(points), blocks, replace=False)]
     label = np.zeros(len(points), np.int64)
     for _ in range(10):
-        label = cKDTree(centres).query(points)[1]
+        label = cKDTree(centres).query(points, workers=-1)[1]
         centres = np.stack([points[label == k].mean(0) if np.any(label == k) else centres[k] for k in range(blocks)])
     return label
 
