@@ -74,7 +74,7 @@ def slim_open3d(wheel: Path) -> Path:
 
         def keep(info: tarfile.TarInfo) -> tarfile.TarInfo | None:
             name = info.name
-            return None if name.startswith(skip) or name.endswith(".ktx") or ".data/" in name else info
+            return None if name.startswith(skip) or name.endswith(".ktx") else info
 
         with tarfile.open(out, "w:xz", preset=6) as tar:
             for top in sorted(Path(tmp).iterdir()):
