@@ -155,6 +155,8 @@ def diagnosis_of(summary: dict[str, Any], where: Path) -> DiagnosisReport | None
         | {"enabled_count": float(sum(len(r.enabled) for r in reports)),
            "significant_count": float(sum(f.significant for r in reports for f in r.findings))},
         "per_frame": {k: v for r in reports for k, v in r.per_frame.items()},
+        "frames": {k: v for r in reports for k, v in r.frames.items()},
+        "recording_frames": {k: v for r in reports for k, v in r.recording_frames.items()},
         "conclusion": [c for r in reports for c in r.conclusion],
         "no_effect_needed": all(r.no_effect_needed for r in reports),
         "images": [i for r in reports for i in r.images],
@@ -181,13 +183,24 @@ def run_record(path: str | Path) -> RunRecord:
                 continue
             name = f"diagnose/{k[: -len('_before')]}"
             per_frame[name] = [float("nan") if x is None else float(x) for x in v]
-            if k.startswith(STATIC_SCOPE + "/") and holdout_every is not None:
-                heldout[name] = split_frames(len(v), int(holdout_every))[1]
-            elif k.startswith(DYNAMIC_SCOPE + "/") and dynamic_holdout_every is not None:
-                heldout[name] = split_frames(len(v), int(dynamic_holdout_every))[1]
+            for scope, every in ((STATIC_SCOPE, holdout_every), (DYNAMIC_SCOPE, dynamic_holdout_every)):
+                if k.startswith(scope + "/") and every is not None:
+                    heldout[name] = _held_out_entries(report, scope, len(v), int(every))
     return RunRecord(
         name=str(where), effects=list(summary.get("effects", [])), metrics=metrics, per_frame=per_frame, heldout=heldout
     )
+
+
+def _held_out_entries(report: DiagnosisReport, scope: str, n: int, every: int) -> list[int]:
+    """Which of the ``n`` entries of a per-frame curve of ``scope`` are frames its stage (I for the
+    static recording, IV for the dynamic one) held out of training: ``split_frames`` over the whole
+    recording, mapped through the positions the diagnosis predicted (a subset with
+    ``PredictViewsConfig.max_frames``). A report without positions has predicted every frame."""
+    positions = report.frames.get(scope)
+    if positions is None or len(positions) != n:
+        return split_frames(n, every)[1]
+    held = set(split_frames(int(report.recording_frames.get(scope, max(positions) + 1)), every)[1])
+    return [i for i, p in enumerate(positions) if p in held]
 
 
 # The per-frame curve of the residual each modelable effect targets (the diagnosis's curves).

@@ -149,7 +149,7 @@ class DiagnosisReport(Artifact):
     """Where the twin fails against the measurement and which physical effects it is missing."""
 
     kind = "diagnosis_report"
-    schema_version = 1
+    schema_version = 2
 
     findings: list[EffectFinding] = Field(
         description="Every applicable effect per scope, ranked: significant first, then by explained fraction."
@@ -167,6 +167,14 @@ class DiagnosisReport(Artifact):
     per_frame: dict[str, list[float]] = Field(
         default_factory=dict,
         description="Per-frame error curves '<scope>/<curve>_before|after' (rgb_rms linear, depth_rms_m, track_rms_m).",
+    )
+    frames: dict[str, list[int]] = Field(
+        default_factory=dict,
+        description="Per recording scope ('static recording', 'dynamic recording'): the position in that recording of "
+        "each entry of its per-frame curves (predict_views may predict some frames only: PredictViewsConfig.max_frames).",
+    )
+    recording_frames: dict[str, int] = Field(
+        default_factory=dict, description="Per recording scope: how many frames the recording has."
     )
     conclusion: list[str] = Field(default_factory=list, description="The verdict in plain language, one line per finding.")
     no_effect_needed: bool = Field(

@@ -283,11 +283,8 @@ def _as_predicted(capture: CaptureArtifact, prediction: ViewPrediction) -> Captu
     """The capture's frames that ``prediction`` predicts, at its RGB size (``predict_views`` may
     predict some of the frames, at a lower resolution: ``PredictViewsConfig.max_frames``, ``max_side``)."""
     cap = to_core(Capture, capture)
-    ids = np.asarray(prediction.frame_ids, np.int64)
-    if not np.array_equal(ids, cap.frame_ids):
-        pos = np.searchsorted(cap.frame_ids, ids)
-        if np.any(pos >= cap.num_frames) or not np.array_equal(cap.frame_ids[np.minimum(pos, cap.num_frames - 1)], ids):
-            raise InputError("diagnose: the prediction names frames the capture does not have; predict this capture's frames.")
+    pos = predicted_positions(cap.frame_ids, prediction.frame_ids)
+    if not np.array_equal(pos, np.arange(cap.num_frames)):
         cap = cap.select_frames(pos)
     h, w = prediction.rgb.shape[1:3]
     if (w, h) != cap.rgb_size:
@@ -295,6 +292,28 @@ def _as_predicted(capture: CaptureArtifact, prediction: ViewPrediction) -> Captu
         if small.rgb_size == (w, h):
             cap = small
     return cap
+
+
+def predicted_positions(capture_ids: np.ndarray, prediction_ids: np.ndarray) -> np.ndarray:
+    """Where in the recording (frame positions) the prediction's frames are, in its order."""
+    capture_ids, ids = np.asarray(capture_ids, np.int64), np.asarray(prediction_ids, np.int64)
+    if np.array_equal(ids, capture_ids):
+        return np.arange(len(ids))
+    pos = np.searchsorted(capture_ids, ids)
+    n = len(capture_ids)
+    if n == 0 or np.any(pos >= n) or not np.array_equal(capture_ids[np.minimum(pos, n - 1)], ids):
+        raise InputError("diagnose: the prediction names frames the capture does not have; predict this capture's frames.")
+    return pos
+
+
+def _with_positions(report: DiagnosisReport, scope: str, capture: CaptureArtifact, prediction: ViewPrediction) -> DiagnosisReport:
+    """``report`` recording where in the recording of ``scope`` its per-frame curves' frames are:
+    a comparison of runs needs it to find the frames a stage held out of training."""
+    pos = predicted_positions(capture.frame_ids, prediction.frame_ids)
+    return report.model_copy(update={
+        "frames": {**report.frames, scope: [int(p) for p in pos]},
+        "recording_frames": {**report.recording_frames, scope: int(len(capture.frame_ids))},
+    })
 
 
 def _track_data(joints: JointSet, trajectories: TrajectoriesArtifact, config: DiagnoseConfig) -> list[tuple[str, ResidualData]]:
@@ -544,7 +563,7 @@ def _with_findings(report: DiagnosisReport, scope: str, findings: list[EffectFin
     })
 
 
-@stage(name="diagnose", version=8, config=DiagnoseConfig, output=DiagnosisReport)
+@stage(name="diagnose", version=9, config=DiagnoseConfig, output=DiagnosisReport)
 def diagnose_twin(
     capture: CaptureArtifact,
     prediction: ViewPrediction,
@@ -564,10 +583,11 @@ def diagnose_twin(
             findings = [f for f in findings if f.name in config.effects]
             lines = [line for line in lines if any(f"--effect {f.name}" in line for f in findings)]
     lag_findings, lag_lines = _lag_findings(pose_lag, STATIC_SCOPE, config)
+    report = _with_positions(report, STATIC_SCOPE, capture, prediction)
     return _with_findings(report, STATIC_SCOPE, findings + lag_findings, lines + lag_lines)
 
 
-@stage(name="diagnose_static", version=2, config=DiagnoseConfig, output=DiagnosisReport)
+@stage(name="diagnose_static", version=3, config=DiagnoseConfig, output=DiagnosisReport)
 def diagnose_static(
     capture: CaptureArtifact, prediction: ViewPrediction, config: DiagnoseConfig, pose_lag: PoseLagResult | None = None
 ) -> DiagnosisReport:
@@ -580,7 +600,7 @@ def diagnose_static(
     return diagnose_twin.fn(capture, prediction, JointSet(joints=[]), empty, config, pose_lag)
 
 
-@stage(name="diagnose_dynamic", version=3, config=DiagnoseConfig, output=DiagnosisReport)
+@stage(name="diagnose_dynamic", version=4, config=DiagnoseConfig, output=DiagnosisReport)
 def diagnose_dynamic(
     dynamic: CaptureArtifact, prediction: ViewPrediction, config: DiagnoseConfig, pose_lag: PoseLagResult | None = None
 ) -> DiagnosisReport:
@@ -589,4 +609,5 @@ def diagnose_dynamic(
     data = _sensor_data(dynamic, prediction, config)
     section = (DYNAMIC_SCOPE, run_diagnosis(data, _effects(config), _core_config(config)), data)
     report = report_from_sections([section], title="ArtiTwin diagnosis: the dynamic recording")
+    report = _with_positions(report, DYNAMIC_SCOPE, dynamic, prediction)
     return _with_findings(report, DYNAMIC_SCOPE, *_lag_findings(pose_lag, DYNAMIC_SCOPE, config))

@@ -162,6 +162,9 @@ def test_predictions_of_some_frames_at_a_lower_resolution_are_diagnosed():
     truth = ViewPrediction(rgb=small, depth=prediction.depth[keep], frame_ids=pred.frame_ids)
     report = diagnose_twin(capture, truth, joints, traj, DiagnoseConfig())
     assert f"{STATIC_SCOPE}/exposure_white_balance" in report.enabled
+    # The report says which recording frames its curves are (a comparison finds the held-out ones by them).
+    assert report.frames[STATIC_SCOPE] == prediction_frames(len(capture.frame_ids), PredictViewsConfig(max_frames=6, run_frames=3))
+    assert report.recording_frames[STATIC_SCOPE] == len(capture.frame_ids)
 
 
 def test_states_on_the_rgb_clock_are_compared_on_the_tracks_clock():
