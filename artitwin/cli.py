@@ -102,21 +102,32 @@ _EFFECT_HELP = (
 
 def _scope_effects(effects: list[str], diagnosis: Path | None, out: Path) -> list[str]:
     """``--effect`` entries with bare names placed where a diagnosis found them: the run
-    ``diagnosis`` (an error if it has none), else the run already in ``out`` when there is one."""
-    from flows._runs import diagnosis_of, read_summary, scope_bare_effects
+    ``diagnosis`` (an error if it has none), else the run already in ``out`` when there is one;
+    a joint the diagnosis names (``joint_0``) becomes the name ``fit_joints`` fits that part under."""
+    from flows._runs import (
+        diagnosis_of,
+        fit_joint_names,
+        joint_effects_as_fitted,
+        read_summary,
+        scope_bare_effects,
+    )
 
     source = diagnosis if diagnosis is not None else (out if (out / "summary.json").is_file() else None)
-    report = None
+    report, names = None, {}
     if source is not None:
         try:
             where, summary = read_summary(source)
             report = diagnosis_of(summary, where)
+            names = fit_joint_names(summary)
         except ArtiTwinError as e:
             if diagnosis is not None:
                 _fail(f"--diagnosis: {e}")
         if report is None and diagnosis is not None:
             _fail(f"--diagnosis: {diagnosis} has no diagnosis; give a run that completed its diagnose stage.")
-    return scope_bare_effects(effects, report)
+    scoped, notes = joint_effects_as_fitted(scope_bare_effects(effects, report), names)
+    for line in notes:
+        console.print(line)
+    return scoped
 
 
 @app.command()

@@ -11,7 +11,7 @@ from artitwin_core import InputError
 from artitwin_core.diagnostics._runs import RunComparison, RunRecord, compare_runs, comparison_html
 from artitwin_core.reconstruction import split_frames
 from infra.store import ArtifactStore
-from schemas import DiagnosisReport
+from schemas import DiagnosisReport, JointSet
 
 STATIC_SCOPE = "static recording"
 DYNAMIC_SCOPE = "dynamic recording"
@@ -114,19 +114,51 @@ def scope_bare_effects(names: list[str], report: DiagnosisReport | None) -> list
     """``--effect`` entries with each bare per-recording name (``exposure_white_balance``) put in
     the scope(s) the diagnosis ``report`` found it in (enabled there); a name the diagnosis did
     not enable anywhere, or with no diagnosis at all, keeps its default scope (the static recording)."""
-    from schemas._configs import PER_RECORDING_EFFECTS, effect_scope, split_effect
+    from schemas._configs import EFFECT_SCOPES, PER_RECORDING_EFFECTS, effect_scope, split_effect
 
     out = []
     for entry in names:
         scope, name, _ = split_effect(entry)
         found = []
-        if scope is None and name in PER_RECORDING_EFFECTS and report is not None:
+        if scope is None and report is not None and (name in PER_RECORDING_EFFECTS or EFFECT_SCOPES.get(name) == ("joint",)):
             for e in report.enabled:
                 where, _, n = e.rpartition("/")
-                if n == name and where in ("static recording", "dynamic recording"):
+                if n == name and (where in ("static recording", "dynamic recording") or where.startswith("joint_")):
                     found.append(f"{effect_scope(where)}:{entry}")
         out += found or [entry]
     return out
+
+
+def fit_joint_names(summary: dict[str, Any]) -> dict[str, str]:
+    """``{settled joint name: fit_joints' name}`` of a run: the diagnosis names the settled joints
+    (``joint_k``, the k-th part kept), ``fit_joints`` its candidates (``joint_<label - 1>``); they
+    differ once a candidate before it was merged or dropped. Empty when the run settled no parts."""
+    entry = summary["stages"].get("settle_parts")
+    if entry is None or entry.get("status") in ("failed", "skipped"):
+        return {}
+    try:
+        settled = ArtifactStore(summary["store"]).get(entry["key"], JointSet)
+    except (KeyError, FileNotFoundError, OSError):
+        return {}
+    labels = settled.mask_labels or list(range(1, len(settled.joints) + 1))
+    return {j.name: f"joint_{int(label) - 1}" for j, label in zip(settled.joints, labels, strict=False)}
+
+
+def joint_effects_as_fitted(names: list[str], mapping: dict[str, str]) -> tuple[list[str], list[str]]:
+    """``--effect`` entries with each joint scope (the diagnosis's settled name) turned into the
+    name ``fit_joints`` fits that part under (``fit_joint_names``), and a note per entry changed."""
+    from schemas._configs import scope_kind, split_effect
+
+    out, notes = [], []
+    for entry in names:
+        scope, name, _ = split_effect(entry)
+        fitted = mapping.get(scope, scope) if scope is not None and scope_kind(scope) == "joint" else scope
+        if fitted != scope:
+            out.append(f"{fitted}:{entry.split(':', 1)[1]}")
+            notes.append(f"{entry}: the diagnosis's {scope} is the part fit_joints fits as {fitted}")
+        else:
+            out.append(entry)
+    return out, notes
 
 
 def diagnosis_of(summary: dict[str, Any], where: Path) -> DiagnosisReport | None:

@@ -11,8 +11,9 @@ configs readable.
 from __future__ import annotations
 
 import re
+from typing import Any
 
-from pydantic import Field, model_validator
+from pydantic import Field, field_validator, model_validator
 
 from schemas._articulate import ArticulateConfig
 from schemas._base import StageConfig
@@ -236,8 +237,21 @@ class JointConfig(StageConfig):
     model_screw: bool = Field(
         default=False,
         description="Fit every rotating part as a screw joint (rotation with coupled travel along its axis) instead "
-        "of testing the pitch for significance: the 'screw_joint' effect enabled.",
+        "of testing the pitch for significance: the 'screw_joint' effect enabled without a joint.",
     )
+    screw_joints: list[str] = Field(
+        default_factory=list,
+        description="Fit these joints only as screw joints ('joint_0', ...: this stage's names, joint_<candidate "
+        "label - 1>; `artitwin run` translates the diagnosis's settled names): the effect 'joint_0:screw_joint'.",
+    )
+
+    @field_validator("screw_joints")
+    @classmethod
+    def _joint_names(cls, v: list[str]) -> list[str]:
+        bad = [n for n in v if not re.fullmatch(r"joint_\d+", n)]
+        if bad:
+            raise ValueError(f"screw_joints: {bad} are not joint names; give joint_0, joint_1, ...")
+        return sorted(set(v), key=lambda n: int(n[6:]))
 
 
 class SettlePartsConfig(StageConfig):
@@ -449,6 +463,8 @@ class PipelineConfig(StageConfig):
         values: dict[str, float] = {}
         plain = []
         scoped: dict[str, set[str]] = {}  # per-recording effect -> recordings
+        joints: dict[str, set[str]] = {}  # per-joint effect -> the joints named (joint_0, ...)
+        bare: set[str] = set()  # effects named without a joint (a joint effect then models every joint)
         for entry in names:
             scope, name, raw = split_effect(str(entry))
             if name in EFFECT_VALUES:
@@ -467,6 +483,10 @@ class PipelineConfig(StageConfig):
             plain.append(name)
             if name in PER_RECORDING_EFFECTS:
                 scoped.setdefault(name, set()).add(scope or DEFAULT_SCOPES[name])
+            elif scope is not None and scope_kind(scope) == "joint":
+                joints.setdefault(name, set()).add(scope)
+            else:
+                bare.add(name)
         names = list(dict.fromkeys(plain))
         unknown = [n for n in names if n not in MODELLED]
         if unknown:
@@ -483,13 +503,15 @@ class PipelineConfig(StageConfig):
                 if effect is None:  # split_effect checks scopes; a bare name takes its default
                     raise ValueError(f"{name} cannot be modelled in the {kind} scope; it can in {EFFECT_SCOPES[name]}")
                 current = update.get(effect.stage, getattr(self, effect.stage))
-                now = getattr(current, effect.field)
-                if isinstance(now, list):
-                    value = sorted(set(now) | {name})
-                else:
-                    value = values[name] if effect.param else True
+                set_to: dict[str, Any] = dict(effect.also)
+                if effect.joint_field is not None and name in joints:  # these joints only
+                    set_to[effect.joint_field] = sorted(set(getattr(current, effect.joint_field)) | joints[name])
+                if effect.joint_field is None or name in bare:
+                    now = getattr(current, effect.field)
+                    set_to[effect.field] = sorted(set(now) | {name}) if isinstance(now, list) else (
+                        values[name] if effect.param else True)
                 # validated: bounds and cross-field rules hold
-                update[effect.stage] = current.model_validate({**current.model_dump(), effect.field: value, **effect.also})
+                update[effect.stage] = current.model_validate({**current.model_dump(), **set_to})
         return self.model_copy(update=update)
 
     def enabled_effects(self) -> list[str]:
@@ -506,6 +528,8 @@ class PipelineConfig(StageConfig):
                     out.append(f"{effect.name}={value:g}")
             elif value:
                 out.append(effect.name)
+            if effect.joint_field is not None:
+                out += [f"{j}:{effect.name}" for j in getattr(getattr(self, effect.stage), effect.joint_field)]
         return sorted(out)
 
     @classmethod

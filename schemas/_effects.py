@@ -31,6 +31,8 @@ class ModelledEffect:
             (each joint, ``joint_0`` ...). An effect with a model per recording has one row per
             recording (the camera's exposure is learned in stage I for the static recording and in
             stage IV for the dynamic one); the first row's scope is where a bare name goes.
+        joint_field: for a ``joint`` row, the list field that takes the joint of a scoped entry
+            (``joint_0:screw_joint`` adds ``joint_0``); a bare name sets ``field`` (every joint).
     """
 
     name: str
@@ -39,6 +41,7 @@ class ModelledEffect:
     param: str | None = None
     also: dict[str, Any] = field(default_factory=dict)
     scopes: tuple[str, ...] = ("static",)
+    joint_field: str | None = None
 
 
 MODELLED_EFFECTS: tuple[ModelledEffect, ...] = (
@@ -46,7 +49,7 @@ MODELLED_EFFECTS: tuple[ModelledEffect, ...] = (
     # The dynamic recording's own camera, fitted in stage IV against the twin (predict_dynamic applies it).
     ModelledEffect("exposure_white_balance", "articulate", "sensor_effects", scopes=("dynamic",)),
     ModelledEffect("vignetting", "articulate", "sensor_effects", scopes=("dynamic",)),
-    ModelledEffect("screw_joint", "fit_joints", "model_screw", scopes=("joint",)),
+    ModelledEffect("screw_joint", "fit_joints", "model_screw", scopes=("joint",), joint_field="screw_joints"),
     ModelledEffect("pose_drift", "pose_drift", "model", scopes=("static", "dynamic")),
     ModelledEffect("pose_lag", "pose_lag", "model", also={"correct": True}, scopes=("static", "dynamic")),
     ModelledEffect("time_offset", "joint_states", "rgb_time_offset_s", param="seconds", scopes=("dynamic",)),

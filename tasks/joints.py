@@ -39,6 +39,7 @@ config_map(
     stage_only={
         "model_screw": "the effect screw_joint: sets JointFitConfig's screw_bic_margin, min_screw_travel_m and "
         "screw_min_pitch_t together, so that every rotating part is a screw",
+        "screw_joints": "the effect joint_N:screw_joint: model_screw's settings for the joints it names only",
     },
 )
 config_map(
@@ -54,15 +55,18 @@ config_map(
 _SCREW_ALWAYS = {"screw_bic_margin": float("-inf"), "min_screw_travel_m": 0.0, "screw_min_pitch_t": 0.0}
 
 
-def _fit_config(config: JointConfig) -> JointFitConfig:
-    return to_core_config(JointFitConfig, config, **(_SCREW_ALWAYS if config.model_screw else {}))
+def _fit_config(config: JointConfig, name: str) -> JointFitConfig:
+    """The fit of joint ``name``: a screw whatever its pitch's significance where the effect
+    screw_joint names it, or names no joint (then every rotating part)."""
+    screw = config.model_screw or name in config.screw_joints
+    return to_core_config(JointFitConfig, config, **(_SCREW_ALWAYS if screw else {}))
 
 
 def _subset(traj: Trajectories, keep: np.ndarray) -> Trajectories:
     return Trajectories(traj.points_in_world[:, keep], traj.pixels[:, keep], traj.valid[:, keep], traj.query_frame)
 
 
-@stage(name="fit_joints", version=9, config=JointConfig, output=JointSet)
+@stage(name="fit_joints", version=10, config=JointConfig, output=JointSet)
 def fit_joints(trajectories: TrajectoriesArtifact, masks: MaskSequenceArtifact, config: JointConfig) -> JointSet:
     """Fit a joint to each candidate part's tracks; the model-selection scores go in ``selection``.
 
@@ -77,14 +81,14 @@ def fit_joints(trajectories: TrajectoriesArtifact, masks: MaskSequenceArtifact, 
     for label in labels:
         keep = part_ids == label - 1
         n_tracks = int(np.count_nonzero(traj.valid[:, keep].any(0)))
+        name = f"joint_{label - 1}"
         try:
-            fit = estimate_joint(_subset(traj, keep), _fit_config(config), **core_kwargs(estimate_joint, config))
+            fit = estimate_joint(_subset(traj, keep), _fit_config(config, name), **core_kwargs(estimate_joint, config))
         except Exception as e:  # noqa: BLE001 (one candidate's failure is its own: it is reported, the others go on)
             why = "no point could be tracked on it" if n_tracks == 0 else f"no joint could be fitted to its {n_tracks} tracks ({e})"
             fates.append(PartFateArtifact(candidate=candidate_index(masks, label), fate="dropped", stage="fit_joints",
                                           reason=why, label=label))
             continue
-        name = f"joint_{label - 1}"
         joints.append(to_artifact(JointParams, fit.joint, name=name))
         fitted.append(label)
         selection[name] = {f"bic_{h.joint_type}": float(h.bic) for h in fit.hypotheses}

@@ -86,9 +86,12 @@ def test_an_effect_is_modelled_in_the_scope_it_is_named_with():
     cfg = base.with_effects(["dynamic:exposure_white_balance", "static:vignetting", "joint_0:screw_joint"])
     assert cfg.articulate.sensor_effects == ["exposure_white_balance"]  # stage IV, the dynamic recording
     assert cfg.reconstruct.sensor_effects == ["vignetting"]  # reconstruct, the static recording
-    assert cfg.fit_joints.model_screw
-    assert cfg.enabled_effects() == ["dynamic:exposure_white_balance", "screw_joint", "static:vignetting"]
+    # The named joint only; a bare name models every rotating joint.
+    assert cfg.fit_joints.screw_joints == ["joint_0"] and not cfg.fit_joints.model_screw
+    assert cfg.enabled_effects() == ["dynamic:exposure_white_balance", "joint_0:screw_joint", "static:vignetting"]
     assert cfg.with_effects(cfg.enabled_effects()) == cfg  # the inverse round-trips
+    both = base.with_effects(["joint_2:screw_joint", "joint_10:screw_joint", "screw_joint"]).fit_joints
+    assert both.screw_joints == ["joint_2", "joint_10"] and both.model_screw
     only_dynamic = base.with_effects(["dynamic recording:vignetting"])  # the diagnosis's own scope names work too
     assert only_dynamic.reconstruct == base.reconstruct and only_dynamic.articulate.sensor_effects == ["vignetting"]
     for bad, says in (("dynmaic:vignetting", "unknown scope 'dynmaic'.*static, dynamic or a joint"),
@@ -128,3 +131,30 @@ def test_the_rerun_command_names_the_scope_the_diagnosis_found():
     # One ranking over every scope: the enabled dynamic finding first, the disabled static one last.
     assert [f.name for f in rank_findings(report.findings)] == [
         "exposure_white_balance", "screw_joint", "depth_scale_offset", "vignetting"]
+
+
+def test_a_joint_the_diagnosis_names_is_the_part_fit_joints_fits(tmp_path):
+    """The diagnosis names the settled joints (joint_k: the k-th part kept); fit_joints names its
+    candidates (joint_<label - 1>). With candidate 0 dropped, the diagnosis's joint_0 is fit_joints'
+    joint_1, and `artitwin run --effect joint_0:screw_joint` must model that one."""
+    import numpy as np
+
+    from flows._runs import fit_joint_names, joint_effects_as_fitted, scope_bare_effects
+    from infra.store import ArtifactStore
+    from schemas import JointParams, JointSet
+
+    def joint(name):
+        return JointParams(name=name, joint_type="revolute", axis=np.array([0.0, 0, 1]), pivot=np.zeros(3),
+                           q=np.zeros(4), q_range=np.zeros(2), residual=np.zeros(4), confidence=np.ones(4))
+
+    store = ArtifactStore(str(tmp_path / "store"))
+    store.put("a" * 64, JointSet(joints=[joint("joint_0"), joint("joint_1")], mask_labels=[2, 3]))
+    summary = {"stages": {"settle_parts": {"status": "computed", "key": "a" * 64}}, "store": str(tmp_path / "store")}
+    names = fit_joint_names(summary)
+    assert names == {"joint_0": "joint_1", "joint_1": "joint_2"}
+    scoped, notes = joint_effects_as_fitted(["joint_0:screw_joint", "dynamic:vignetting"], names)
+    assert scoped == ["joint_1:screw_joint", "dynamic:vignetting"] and len(notes) == 1
+    # A bare name goes to the joints the diagnosis enabled it on.
+    report = DiagnosisReport(findings=[], enabled=["joint_1/screw_joint"])
+    assert scope_bare_effects(["screw_joint"], report) == ["joint_1:screw_joint"]
+    assert scope_bare_effects(["screw_joint"], None) == ["screw_joint"]

@@ -108,3 +108,32 @@ def test_joint_states_stage_refits_the_held_door_state():
     # The set says which clock its states are on (the diagnosis moves them back for the tracks).
     assert late_set.rgb_time_offset_s == 0.02 and np.array_equal(late_set.timestamps, ts)
     assert same.rgb_time_offset_s == 0.0 and same.timestamps is None
+
+
+def test_screw_joint_named_for_one_joint_models_that_joint_only():
+    """`--effect joint_1:screw_joint` makes joint_1 a screw and leaves joint_0 a revolute; a bare
+    `screw_joint` makes every rotating part one (issue 28: the scope used to be ignored)."""
+    rng = np.random.default_rng(3)
+    trajs = []
+    for _ in range(2):
+        joint, closed = random_part_joint("revolute", 120, 20, rng)
+        trajs.append(simulate_trajectories(joint, closed, rng, noise_m=0.001, outlier_fraction=0.05)[0])
+    art = TrajectoriesArtifact(
+        points_in_world=np.concatenate([t.points_in_world for t in trajs], axis=1),
+        pixels=np.concatenate([t.pixels for t in trajs], axis=1).astype(np.float32),
+        valid=np.concatenate([t.valid for t in trajs], axis=1),
+        part_ids=np.repeat(np.arange(2, dtype=np.int32), [t.valid.shape[1] for t in trajs]),
+    )
+    t = art.valid.shape[0]
+    labels = np.zeros((t, 1, 2), np.uint8)
+    labels[:, 0, 0], labels[:, 0, 1] = 1, 2
+    masks = MaskSequenceArtifact(part=labels, hand=np.zeros(labels.shape, bool), score=np.ones(t, np.float32))
+    from schemas import PipelineConfig
+
+    def types(config):
+        return [j.joint_type for j in fit_joints(art, masks, config).joints]
+
+    assert types(JointConfig()) == ["revolute", "revolute"]  # no pitch: the significance test says revolute
+    one = PipelineConfig().with_effects(["joint_1:screw_joint"]).fit_joints
+    assert types(one) == ["revolute", "screw"]
+    assert types(PipelineConfig().with_effects(["screw_joint"]).fit_joints) == ["screw", "screw"]
