@@ -444,12 +444,14 @@ def self_consistency(capture: CaptureArtifact, config: DiagnoseConfig) -> tuple[
     (the corrected capture) finds neither.
     """
     cap = to_core(Capture, capture)
+    gate = core_kwargs(DriftSignificance.why_not, PoseDriftConfig())
     try:
-        joint = estimate_depth_calibration(cap, config=CoreCalibrationConfig(pose_drift=True))
+        joint = estimate_depth_calibration(cap, config=CoreCalibrationConfig(pose_drift=True),
+                                           halves_gate=(gate["min_displacement_m"], gate["min_z"]))
     except InputError as e:
         return [], [f"{STATIC_SCOPE}: its frames' self-consistency could not be tested ({e})"]
     sig = joint.drift_significance
-    why = sig.why_not(**core_kwargs(DriftSignificance.why_not, PoseDriftConfig()))
+    why = sig.why_not(**gate)
     poses = joint.drift.apply(cap.world_from_camera, cap.timestamps) if not why else cap.world_from_camera
     plain_recorded = estimate_depth_calibration(cap)
     depth = estimate_depth_calibration(cap, world_from_camera=poses) if not why else plain_recorded

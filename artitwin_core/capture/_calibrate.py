@@ -104,11 +104,28 @@ def _normals(z: np.ndarray, k: np.ndarray) -> np.ndarray:
     return n / np.linalg.norm(n, axis=-1, keepdims=True)
 
 
-def _pair_terms(capture: Capture, poses: np.ndarray, i: int, j: int, a: float, b: float, cfg: DepthCalibrationConfig):
+def _target_maps(capture: Capture, j: int, a: float, b: float, cfg: DepthCalibrationConfig) -> tuple[np.ndarray, np.ndarray]:
+    """Frame ``j`` as the target of :func:`_pair_terms`: its measured depth ``[H, W]`` (NaN where
+    its confidence is too low) and the unit normals ``[H, W, 3]`` (camera frame) of its depth at
+    the calibration ``true = a * measured + b``, smoothed over 5 x 5 pixels (the noise tilts them
+    otherwise). The same for every pair frame ``j`` ends, so :func:`_estimate` computes it once
+    per frame and iteration."""
+    conf = capture.confidence if capture.confidence is not None and cfg.min_confidence > 0 else None
+    kj = np.asarray(capture.depth_intrinsics[j], np.float64)
+    dj_map = np.asarray(capture.depth[j], np.float64)
+    if conf is not None:
+        dj_map = np.where(np.asarray(conf[j]) >= cfg.min_confidence, dj_map, np.nan)  # NaN drops the sample
+    zs = cv2.blur(np.nan_to_num(a * dj_map + b).astype(np.float32), (5, 5)).astype(np.float64)
+    return dj_map, _normals(np.where(np.isfinite(dj_map), zs, np.nan), kj)
+
+
+def _pair_terms(capture: Capture, poses: np.ndarray, i: int, j: int, a: float, b: float, cfg: DepthCalibrationConfig,
+                target: tuple[np.ndarray, np.ndarray] | None = None):
     """Point-to-plane terms of frame ``i``'s depth against frame ``j``'s at the current
     calibration ``true = a * measured + b``: ``(c0, ca, cb, depth, points, normals)`` with residual
     ``c0 + a ca + b cb``, the measured depths of the points of frame ``i``, the points ``[N, 3]`` in
-    the world and frame ``j``'s surface normals ``[N, 3]`` there."""
+    the world and frame ``j``'s surface normals ``[N, 3]`` there. ``target``: frame ``j``'s
+    :func:`_target_maps` at ``(a, b)``, when already computed."""
     ki, kj = np.asarray(capture.depth_intrinsics[i], np.float64), np.asarray(capture.depth_intrinsics[j], np.float64)
     h, w = capture.depth.shape[1:]
     st = cfg.pixel_stride
@@ -128,18 +145,14 @@ def _pair_terms(capture: Capture, poses: np.ndarray, i: int, j: int, a: float, b
         uj, vj = kj[0] * y[:, 0] / z + kj[2], kj[1] * y[:, 1] / z + kj[3]
     inb = (z > 0.1) & (uj >= 2) & (uj < w - 3) & (vj >= 2) & (vj < h - 3)
     uu, vv = uj[inb], vj[inb]
-    dj_map = np.asarray(capture.depth[j], np.float64)
-    if conf is not None:
-        dj_map = np.where(np.asarray(conf[j]) >= cfg.min_confidence, dj_map, np.nan)  # NaN drops the sample
+    dj_map, n_map = _target_maps(capture, j, a, b, cfg) if target is None else target
     u0, v0 = np.floor(uu).astype(int), np.floor(vv).astype(int)
     fu, fv = uu - u0, vv - v0
     q = np.stack([dj_map[v0, u0], dj_map[v0, u0 + 1], dj_map[v0 + 1, u0], dj_map[v0 + 1, u0 + 1]], 1)
     dj = q[:, 0] * (1 - fu) * (1 - fv) + q[:, 1] * fu * (1 - fv) + q[:, 2] * (1 - fu) * fv + q[:, 3] * fu * fv
     with np.errstate(invalid="ignore"):
         edge = ~((np.max(q, 1) - np.min(q, 1)) <= cfg.edge_m)
-    # Normals of frame j's calibrated depth, smoothed over 5 x 5 pixels (the noise tilts them otherwise).
-    zs = cv2.blur(np.nan_to_num(a * dj_map + b).astype(np.float32), (5, 5)).astype(np.float64)
-    n_cam = _normals(np.where(np.isfinite(dj_map), zs, np.nan), kj)[np.round(vv).astype(int), np.round(uu).astype(int)]
+    n_cam = n_map[np.round(vv).astype(int), np.round(uu).astype(int)]
     ray_c = np.stack([(uu - kj[2]) / kj[0], (vv - kj[3]) / kj[1], np.ones_like(uu)], -1)
     facing = np.abs(np.sum(n_cam * ray_c, 1)) / np.linalg.norm(ray_c, axis=1)
     good = np.isfinite(dj) & ~edge & np.all(np.isfinite(n_cam), 1) & (np.nan_to_num(facing) > cfg.min_facing_cos)
@@ -176,7 +189,8 @@ def _feature_terms(
 
 
 def estimate_depth_calibration(
-    capture: Capture, world_from_camera: np.ndarray | None = None, config: DepthCalibrationConfig = DepthCalibrationConfig()
+    capture: Capture, world_from_camera: np.ndarray | None = None, config: DepthCalibrationConfig = DepthCalibrationConfig(),
+    halves_gate: tuple[float, float] | None = None,
 ) -> DepthCalibration:
     """The sensor's depth error, from how its frames' depth disagree at their poses; with
     ``config.pose_drift``, the poses' linear drift with it.
@@ -202,6 +216,10 @@ def estimate_depth_calibration(
     The poses must be metric and locally consistent (a recording's own ARKit poses); their errors
     bias the result (3 mm / 3 mrad of jitter per frame: about 1 % of scale).
 
+    ``halves_gate``: ``(min_displacement_m, min_z)`` of ``DriftSignificance.why_not``: the halves
+    are fitted only for a drift that passes these first two tests (one that fails them is refused
+    whatever its halves say, and the halves cost half the fit again); their rates stay None.
+
     Raises:
         InputError: too few frames or overlapping points to estimate anything, or poses of the
             wrong shape.
@@ -209,6 +227,10 @@ def estimate_depth_calibration(
     cal = _estimate(capture, world_from_camera, config)
     if cal.drift is None or capture.num_frames < 2 * max(config.frame_gaps) + 2:
         return cal
+    if halves_gate is not None and cal.drift_significance is not None:
+        sig = cal.drift_significance
+        if sig.size_m < halves_gate[0] or not sig.z_score >= halves_gate[1]:
+            return cal
     # The drift seen by each half of the recording alone: a linear drift is the same in both.
     poses = np.asarray(capture.world_from_camera if world_from_camera is None else world_from_camera, np.float64)
     half = capture.num_frames // 2
@@ -256,7 +278,9 @@ def _estimate(capture: Capture, world_from_camera: np.ndarray | None, config: De
     blocks = config.jackknife_blocks
     for _ in range(config.iterations):
         poses = drift.apply(recorded, ts) if drift is not None else recorded
-        sources = [([_pair_terms(capture, poses, i, j, a, b, config) for i, j in pairs], pairs)]
+        targets = {j: _target_maps(capture, j, a, b, config) for j in sorted({j for _, j in pairs})}
+        sources = [([_pair_terms(capture, poses, i, j, a, b, config, targets[j]) for i, j in pairs], pairs)]
+        del targets
         if matches:
             found = [(_feature_terms(capture, poses, i, j, pi, pj, a, b, config), (i, j)) for (i, j), (pi, pj) in matches.items()]
             found = [(t, p) for t, p in found if t is not None]
