@@ -33,7 +33,7 @@ from scipy.ndimage import gaussian_filter
 
 from artitwin_core.diagnostics._patch import drift_columns
 from artitwin_core.diagnostics._plugin import Effect, Evidence, register_effect
-from artitwin_core.diagnostics._residuals import ResidualData
+from artitwin_core.diagnostics._residuals import TRACK_FIELDS, ResidualData
 from artitwin_core.geometry import axis_angle_to_matrix, backproject, pixel_grid
 
 
@@ -119,6 +119,9 @@ class _Displacement(Effect):
     """
 
     target = "photometric"
+    # The displaced prediction and the timing effects' image velocity read RGB, the predicted
+    # depth, the poses and times; never the assumed sigma(z) or the tracks.
+    unaffected_by = TRACK_FIELDS | {"depth_sigma"}
     param_names: tuple[str, ...] = ()
     steps: tuple[float, ...] = ()
     # Coarse to fine: Gaussian blur (pixels) of both images at each Gauss-Newton step.
@@ -330,11 +333,19 @@ class PoseDrift(Effect):
         v = np.asarray(params["trans0_m"]) + s * np.asarray(params["trans_m_per_s"])
         return w, v
 
-    def _system(self, data: ResidualData, t0: float):
-        """Point-to-plane rows ``[n, 12]``, right-hand side ``[n]``, and the frame of each row."""
+    @staticmethod
+    def _surface(data: ResidualData) -> tuple[np.ndarray, np.ndarray]:
+        """The predicted surface's world points and unit normals (``[T, h, w, 3]`` each): what
+        ``_system`` compares the measurement with. ``apply_to_target`` changes only the
+        measurement, so one fit computes them once."""
         p = _backproject(data.depth_pred, data.depth_intrinsics, data.world_from_camera)
+        return p, _normals(p)
+
+    def _system(self, data: ResidualData, t0: float, surface: tuple[np.ndarray, np.ndarray] | None = None):
+        """Point-to-plane rows ``[n, 12]``, right-hand side ``[n]``, and the frame of each row;
+        ``surface``: ``_surface(data)`` when already computed."""
+        p, n = self._surface(data) if surface is None else surface
         q = _backproject(data.depth_meas, data.depth_intrinsics, data.world_from_camera)
-        n = _normals(p)
         ok = np.isfinite(data.depth_residual()) & np.all(np.isfinite(n), -1)
         a, b = data.depth_sigma
         sigma = a + b * data.depth_pred.astype(np.float64) ** 2
@@ -350,8 +361,9 @@ class PoseDrift(Effect):
         t0 = float(data.timestamps[0])
         params = {"t0_s": t0, "rot0_rad": [0.0] * 3, "rot_rad_per_s": [0.0] * 3, "trans0_m": [0.0] * 3,
                   "trans_m_per_s": [0.0] * 3}
+        surface = self._surface(data)  # the prediction's: the same at every step
         for _ in range(self.iterations):
-            rows, rhs, _ = self._system(self.apply(data, params), t0)
+            rows, rhs, _ = self._system(self.apply_to_target(data, params), t0, surface)
             if rows.shape[0] < 100:
                 break
             scale = np.maximum(np.linalg.norm(rows, axis=0), 1e-12)
@@ -364,11 +376,12 @@ class PoseDrift(Effect):
         drift_v = -v1 - np.cross(w1, c0)
         params.update(drift_rot_rad_per_s=float(np.linalg.norm(w1)), drift_trans_m_per_s=float(np.linalg.norm(drift_v)),
                       drift_trans_m_per_s_xyz=drift_v.tolist(), drift_rot_rad_per_s_xyz=(-w1).tolist())
-        return params, self._evidence(data, params, c0)
+        return params, self._evidence(data, params, c0, surface)
 
-    def _evidence(self, data: ResidualData, params: dict, c0: np.ndarray) -> Evidence | None:
+    def _evidence(self, data: ResidualData, params: dict, c0: np.ndarray,
+                  surface: tuple[np.ndarray, np.ndarray] | None = None) -> Evidence | None:
         """Per frame, a free rigid correction (one linear point-to-plane step) against the fitted line."""
-        rows, rhs, frame = self._system(data, float(params["t0_s"]))
+        rows, rhs, frame = self._system(data, float(params["t0_s"]), surface)
         t_count = data.depth_pred.shape[0]
         y = np.full((3, t_count), np.nan)
         for t in range(t_count):
@@ -385,6 +398,15 @@ class PoseDrift(Effect):
                         "drift (m)", data.timestamps.tolist(), y.tolist(), model.tolist(), ("x", "y", "z"))
 
     def apply(self, data: ResidualData, params: dict) -> ResidualData:
+        out = self.apply_to_target(data, params)
+        if data.has_rgb:
+            w, v = self._per_frame(params, data)
+            out = replace(out, rgb_pred=self._rgb(data, _rigid(w, v)))
+        return out
+
+    def apply_to_target(self, data: ResidualData, params: dict) -> ResidualData:
+        """The depth measurement corrected (what the fit and the depth residual see); ``apply``
+        also moves the RGB prediction, which the depth never reads."""
         # The measurement is corrected: each pixel's predicted point is moved by C_t^-1 to where the
         # sensor saw it, the measured depth there is sampled (bilinear), and its point moved back by C_t.
         w, v = self._per_frame(params, data)
@@ -415,10 +437,7 @@ class PoseDrift(Effect):
         depth = np.where(np.isfinite(depth) & (depth > 0), depth, np.nan).astype(np.float32)
         # A pixel with no corrected measurement is NaN, which every residual leaves out; the
         # validity mask itself stays as it is (the held-out check relies on it).
-        out = replace(data, depth_meas=depth)
-        if data.has_rgb:
-            out = replace(out, rgb_pred=self._rgb(data, corr))
-        return out
+        return replace(data, depth_meas=depth)
 
     @staticmethod
     def _rgb(data: ResidualData, corr: np.ndarray) -> np.ndarray:

@@ -17,6 +17,8 @@ import numpy as np
 from artitwin_core.diagnostics._patch import depth_affine_columns
 from artitwin_core.diagnostics._plugin import Effect, Evidence, register_effect
 from artitwin_core.diagnostics._residuals import (
+    RGB_PREDICTION_FIELDS,
+    TRACK_FIELDS,
     ResidualData,
     depth_noise_bins,
     solve_points,
@@ -42,6 +44,7 @@ class ExposureWhiteBalance(Effect):
 
     name = "exposure_white_balance"
     target = "photometric"
+    unaffected_by = TRACK_FIELDS | {"depth_sigma"}  # reads RGB only
     description = "Per-frame per-channel gain g and offset o on linear RGB: measured = g * predicted + o."
 
     def applies(self, data: ResidualData) -> bool:
@@ -98,6 +101,7 @@ class Vignetting(Effect):
 
     name = "vignetting"
     target = "photometric"
+    unaffected_by = TRACK_FIELDS | {"depth_sigma"}  # reads RGB only
     description = "Radial gain 1 + c1 r^2 + c2 r^4 on linear RGB, shared by every frame."
 
     def applies(self, data: ResidualData) -> bool:
@@ -129,6 +133,7 @@ class DepthScaleOffset(Effect):
 
     name = "depth_scale_offset"
     target = "depth"
+    unaffected_by = TRACK_FIELDS | RGB_PREDICTION_FIELDS | {"depth_sigma"}  # the depth residual only
     description = "Per-recording affine depth error: measured = scale * predicted + offset_m."
 
     def applies(self, data: ResidualData) -> bool:
@@ -162,6 +167,7 @@ class DepthNoise(Effect):
 
     name = "depth_noise"
     target = "depth-noise"
+    unaffected_by = TRACK_FIELDS | RGB_PREDICTION_FIELDS  # the depth residual and sigma(z)
     description = "Depth noise model sigma(z) = a_m + b_per_m * z^2, fitted to the depth-binned residual spread."
 
     def applies(self, data: ResidualData) -> bool:

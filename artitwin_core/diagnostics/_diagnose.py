@@ -208,8 +208,10 @@ def diagnose(
     significant: tuple[str, ...] = ()
     null_checks: list[SurfaceNullCheck] = []
     every = cfg.heldout_every or 4
+    kept: dict[str, Signature] = {}  # last round's signatures the enabled effect cannot have changed
     for round_ in range(cfg.max_rounds):
-        sigs = [_signature(e, current) for e in pool.values()]
+        sigs = [kept[n] if n in kept else _signature(e, current) for n, e in pool.items()]
+        by_name = {s.name: s for s in sigs}
         sigs = [s for s in sigs if np.isfinite(s.explained_fraction) and s.target in floors]
         ok = {s.name for s in sigs if _significant(s, floors[s.target], cfg)}
         for s in sigs:
@@ -230,7 +232,9 @@ def diagnose(
         if best is None:
             break
         enabled.append(best)
-        current = pool.pop(best.name).apply(current, best.params)
+        previous, current = current, pool.pop(best.name).apply(current, best.params)
+        changed = current.changed_from(previous)
+        kept = {n: by_name[n] for n, e in pool.items() if n in by_name and changed <= e.unaffected_by}
 
     after = {t: target_energy(current, t) for t in targets}
     # The floor after: an enabled noise model changes what "only noise left" means for depth.

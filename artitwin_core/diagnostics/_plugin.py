@@ -87,6 +87,11 @@ class Effect(ABC):
     name: str = ""
     target: str = ""
     description: str = ""
+    # ``ResidualData`` fields whose change cannot change this effect's signature (it never reads
+    # them). When the effect enabled in one round of the diagnosis changed only such fields, the
+    # next round keeps this effect's signature instead of fitting it again. Empty (the default, and
+    # right for any plugin that does not say): every change refits.
+    unaffected_by: frozenset[str] = frozenset()
 
     @abstractmethod
     def applies(self, data: ResidualData) -> bool:
@@ -99,6 +104,12 @@ class Effect(ABC):
     @abstractmethod
     def apply(self, data: ResidualData, params: dict) -> ResidualData:
         """A copy of ``data`` with the effect added to the prediction (or removed from the measurement)."""
+
+    def apply_to_target(self, data: ResidualData, params: dict) -> ResidualData:
+        """``apply`` as far as the effect's ``target`` residual sees it (``signature`` measures
+        only that): an effect whose ``apply`` also changes other parts of the data at a cost (a
+        pose drift moves the RGB prediction too) may skip them here. The default is ``apply``."""
+        return self.apply(data, params)
 
     def transfer(self, params: dict, train: ResidualData, heldout: ResidualData) -> dict:
         """Parameters for frames the fit never saw (the held-out check, ``evaluate_heldout``).
@@ -121,7 +132,7 @@ class Effect(ABC):
         """Fit, apply, and measure how much of the targeted residual the effect explains."""
         params, evidence = self.fit(data)
         before = target_energy(data, self.target)
-        after = target_energy(self.apply(data, params), self.target)
+        after = target_energy(self.apply_to_target(data, params), self.target)
         # NaN when the target cannot be measured on this data (too few depth pixels, no tracks...).
         frac = (1.0 - after / before if before > 0 else 0.0) if np.isfinite(before) else float("nan")
         return Signature(self.name, self.target, float(frac), before, after, params, evidence)

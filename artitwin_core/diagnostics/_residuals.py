@@ -10,7 +10,7 @@ it corrected. ``target_energy`` measures each kind of residual the same way for 
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, fields
 
 import numpy as np
 
@@ -18,6 +18,11 @@ from artitwin_core._errors import InputError
 from artitwin_core.joints import JointType, joint_transforms
 
 TARGETS = ("photometric", "depth", "depth-noise", "joint-tracks")
+
+# Field groups of ResidualData, for ``Effect.unaffected_by``: an image effect never reads the
+# tracks, and one that reads no depth model never reads the assumed sigma(z).
+TRACK_FIELDS = frozenset({"tracks", "tracks_obs", "tracks_valid", "track_noise_m"})
+RGB_PREDICTION_FIELDS = frozenset({"rgb_pred", "rgb_pred_hi"})
 
 # Depth residuals beyond this are mismatched surfaces (edges, missing geometry), not sensor effects.
 DEPTH_OUTLIER_M = 0.15
@@ -149,6 +154,17 @@ class ResidualData:
     def rgb_residual(self) -> np.ndarray:
         """``[T, H, W, 3]`` measured minus predicted linear RGB (0 outside ``rgb_valid``)."""
         return np.where(self.rgb_valid[..., None], self.rgb_meas - self.rgb_pred, 0.0)
+
+    def changed_from(self, other: ResidualData) -> frozenset[str]:
+        """The fields of this data that are not ``other``'s (a field is changed unless it is the
+        same object or, for tuples and numbers, an equal value): what an effect's ``apply`` changed."""
+        out = []
+        for f in fields(self):
+            a, b = getattr(self, f.name), getattr(other, f.name)
+            if a is b or (not isinstance(a, np.ndarray) and isinstance(a, tuple | int | float | str) and a == b):
+                continue
+            out.append(f.name)
+        return frozenset(out)
 
     def depth_residual(self) -> np.ndarray:
         """``[T, h, w]`` measured minus predicted depth, metres (NaN outside ``depth_valid``)."""
