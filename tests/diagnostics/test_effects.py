@@ -181,3 +181,39 @@ def test_a_residual_no_effect_explains_is_reported_as_structure():
     assert photometric and photometric[0].ratio > 10
     assert max(photometric[0].correlations, key=photometric[0].correlations.get) == "image radius"
     assert any("image radius" in line for line in dg.conclusion)
+
+
+def test_later_rounds_keep_only_signatures_the_enabled_effect_cannot_change(monkeypatch):
+    """After a round enables an effect, an effect whose ``unaffected_by`` covers every field that
+    effect changed keeps its signature rather than being fitted again; the diagnosis is the same
+    as with every effect refitted each round (``unaffected_by`` empty)."""
+    from artitwin_core.diagnostics import registered_effects
+
+    data = residual_data("door", (("exposure", {}), ("depth_noise", {"a_m": 0.002, "b_per_m": 0.008})))
+    pool = registered_effects()
+    fits: dict[str, int] = {}
+
+    def counted(effect):
+        fit = type(effect).fit
+
+        def wrapper(self, d):
+            fits[self.name] = fits.get(self.name, 0) + 1
+            return fit(self, d)
+        return wrapper
+
+    for e in pool.values():
+        monkeypatch.setattr(type(e), "fit", counted(e))
+    reused = diagnose(data, pool)
+    reused_fits = dict(fits)
+    fits.clear()
+    for e in pool.values():
+        monkeypatch.setattr(type(e), "unaffected_by", frozenset())
+    refitted = diagnose(data, pool)
+    assert [s.name for s in reused.enabled] == [s.name for s in refitted.enabled]
+    assert {s.name for s in reused.enabled} == {"exposure_white_balance", "depth_noise"}
+    for a, b in zip(reused.ranking, refitted.ranking, strict=True):
+        assert (a.name, a.explained_fraction, a.energy_after) == (b.name, b.explained_fraction, b.energy_after)
+    assert reused.energy_after == refitted.energy_after and reused.conclusion == refitted.conclusion
+    # Enabling the depth noise model changes only the assumed sigma(z): the image effects kept theirs.
+    assert sum(reused_fits.values()) < sum(fits.values())
+    assert reused_fits["lens_distortion"] < fits["lens_distortion"]
