@@ -43,6 +43,10 @@ class PoseRefineStageConfig(StageConfig):
     extraction_threads: int = Field(
         default=1, ge=0, description="CPU threads extracting SIFT features (0 = every available core; the features are the same)."
     )
+    seed: int = Field(
+        default=0, ge=0, description="COLMAP's random seed (the RANSACs of match verification and triangulation): the same "
+        "recording gives the same poses on every run."
+    )
 
 
 class ReconstructConfig(StageConfig):

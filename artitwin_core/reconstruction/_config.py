@@ -64,11 +64,14 @@ class PoseRefineConfig:
         min_refined_frac: if fewer than this fraction of frames could be refined, the whole
             refinement is abandoned and the capture poses kept.
         num_threads: CPU threads COLMAP may use to match, triangulate and adjust. 1 (the
-            default) makes the result deterministic: with more, COLMAP's threads race (RANSAC,
-            Ceres) and the same recording's poses differed by centimetres between runs, at
-            about the same run time on 2 cores.
+            default), with ``seed``, makes the result deterministic: with more, COLMAP's threads
+            race (RANSAC, Ceres) and the same recording's poses differed by centimetres between
+            runs, at about the same run time on 2 cores.
         extraction_threads: CPU threads extracting SIFT features (0 = every available core).
             Each image's features do not depend on the thread that extracts them.
+        seed: COLMAP's random seed (its RANSACs in the matches' verification and in
+            triangulation). COLMAP's own default draws one per run: the tiny scene's poses then
+            came out one of two ways, 3 cm apart, from one run to the next in one process.
     """
 
     enabled: bool = True
@@ -85,6 +88,7 @@ class PoseRefineConfig:
     min_refined_frac: float = 0.5
     num_threads: int = 1
     extraction_threads: int = 1
+    seed: int = 0
 
     def features_for(self, width: int, height: int) -> int:
         """SIFT features per image of ``width x height`` pixels (``max_features``, or scaled)."""

@@ -216,8 +216,11 @@ def _refine(capture: Capture, config: PoseRefineConfig, pycolmap, tmp: Path, rep
         matching = pycolmap.FeatureMatchingOptions()
         matching.num_threads = config.num_threads
         matching.use_gpu = False
+        verification = pycolmap.TwoViewGeometryOptions()
+        verification.ransac.random_seed = config.seed
         if t_frames <= config.exhaustive_max_frames:
-            pycolmap.match_exhaustive(db_path, matching_options=matching, device=pycolmap.Device.cpu)
+            pycolmap.match_exhaustive(db_path, matching_options=matching, verification_options=verification,
+                                      device=pycolmap.Device.cpu)
         elif config.loop_closure_pairs > 0:
             pairs = match_pairs(capture, config.sequential_overlap, config.loop_closure_pairs)
             listing = tmp / "pairs.txt"
@@ -225,13 +228,15 @@ def _refine(capture: Capture, config: PoseRefineConfig, pycolmap, tmp: Path, rep
             pairing = pycolmap.ImportedPairingOptions()
             pairing.match_list_path = str(listing)
             pycolmap.match_image_pairs(
-                db_path, matching_options=matching, pairing_options=pairing, device=pycolmap.Device.cpu
+                db_path, matching_options=matching, pairing_options=pairing, verification_options=verification,
+                device=pycolmap.Device.cpu,
             )
         else:
             pairing = pycolmap.SequentialPairingOptions()
             pairing.overlap = config.sequential_overlap
             pycolmap.match_sequential(
-                db_path, matching_options=matching, pairing_options=pairing, device=pycolmap.Device.cpu
+                db_path, matching_options=matching, pairing_options=pairing, verification_options=verification,
+                device=pycolmap.Device.cpu,
             )
 
         report.advance()
@@ -434,6 +439,8 @@ def _triangulate(pycolmap, db_path: Path, image_dir: Path, names: list[str], par
         db.close()
     options = pycolmap.IncrementalPipelineOptions()
     options.num_threads = config.num_threads
+    options.mapper.num_threads = config.num_threads
+    options.random_seed = options.mapper.random_seed = options.triangulation.random_seed = config.seed
     out_dir.mkdir()
     return pycolmap.triangulate_points(rec, db_path, image_dir, out_dir, options=options)
 

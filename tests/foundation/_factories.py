@@ -52,8 +52,12 @@ def make_artifact(cls: type[Artifact], rng: np.random.Generator) -> Artifact:
             key_t, val_t = typing.get_args(ann)
             if val_t is float:
                 values[name] = {"a_m": 0.1 + float(rng.random()), "b_deg": 1e-17}
+            elif val_t is int:
+                values[name] = {"static recording": int(rng.integers(0, 500))}
             elif typing.get_origin(val_t) is dict:
                 values[name] = {"j": {"revolute": float(rng.normal()), "prismatic": 2.0}}
+            elif typing.get_origin(val_t) is list and typing.get_args(val_t) == (int,):
+                values[name] = {"static recording": [int(x) for x in rng.integers(0, 500, size=4)]}
             elif typing.get_origin(val_t) is list:
                 values[name] = {"curve": [float(x) for x in rng.normal(size=3)]}
         elif typing.get_origin(ann) is list:

@@ -78,14 +78,22 @@ def test_disabled_keeps_poses(textured):
     np.testing.assert_array_equal(result.world_from_camera, cap.world_from_camera)
 
 
-def test_same_recording_gives_the_same_poses(textured):
+def test_same_recording_gives_the_same_poses():
     # COLMAP's threads race (feature order, RANSAC, Ceres): with 2 threads the same recording
     # gave poses up to 2.3 cm apart from one run to the next (low-texture-door), and every stage
-    # after it followed. One thread is deterministic, at about the same cost here.
-    cap = textured.static
-    first = refine_poses(cap, PoseRefineConfig()).world_from_camera
-    second = refine_poses(cap, PoseRefineConfig()).world_from_camera
-    np.testing.assert_array_equal(first, second)
+    # after it followed. One thread is not enough: COLMAP draws a new random seed for its RANSACs
+    # on every run unless given one, and this recording's poses came out one of two ways, 3 cm
+    # apart, in 3 of 4 processes that refined it 3 times (PoseRefineConfig.seed).
+    from dataclasses import replace
+
+    from artitwin_core.synth import BENCHMARK_SCENES, generate_scene
+
+    spec = replace(BENCHMARK_SCENES["tiny"], static_frames=24, effects=(("exposure", {}), ("white_balance", {})))
+    cap = generate_scene(spec).static
+    config = PoseRefineConfig(max_features=1024)
+    first = refine_poses(cap, config).world_from_camera
+    for _ in range(3):
+        np.testing.assert_array_equal(refine_poses(cap, config).world_from_camera, first)
 
 
 def test_sensor_depth_is_looked_up_where_the_keypoint_is(textured):
