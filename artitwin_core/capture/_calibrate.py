@@ -119,14 +119,11 @@ def _target_maps(capture: Capture, j: int, a: float, b: float, cfg: DepthCalibra
     return dj_map, _normals(np.where(np.isfinite(dj_map), zs, np.nan), kj)
 
 
-def _pair_terms(capture: Capture, poses: np.ndarray, i: int, j: int, a: float, b: float, cfg: DepthCalibrationConfig,
-                target: tuple[np.ndarray, np.ndarray] | None = None):
-    """Point-to-plane terms of frame ``i``'s depth against frame ``j``'s at the current
-    calibration ``true = a * measured + b``: ``(c0, ca, cb, depth, points, normals)`` with residual
-    ``c0 + a ca + b cb``, the measured depths of the points of frame ``i``, the points ``[N, 3]`` in
-    the world and frame ``j``'s surface normals ``[N, 3]`` there. ``target``: frame ``j``'s
-    :func:`_target_maps` at ``(a, b)``, when already computed."""
-    ki, kj = np.asarray(capture.depth_intrinsics[i], np.float64), np.asarray(capture.depth_intrinsics[j], np.float64)
+def _source_samples(capture: Capture, i: int, cfg: DepthCalibrationConfig) -> tuple[np.ndarray, np.ndarray]:
+    """Frame ``i`` as the source of :func:`_pair_terms`: the measured depths ``[N]`` of its
+    usable pixels (every ``pixel_stride``-th, in range, confident enough) and their rays ``[N, 3]``
+    in its camera frame. They depend on nothing that changes between iterations."""
+    ki = np.asarray(capture.depth_intrinsics[i], np.float64)
     h, w = capture.depth.shape[1:]
     st = cfg.pixel_stride
     v, u = np.mgrid[0:h:st, 0:w:st]
@@ -136,9 +133,23 @@ def _pair_terms(capture: Capture, poses: np.ndarray, i: int, j: int, a: float, b
     if conf is not None:
         ok &= np.asarray(conf[i])[::st, ::st] >= cfg.min_confidence
     u, v, di = u[ok].astype(np.float64), v[ok].astype(np.float64), di[ok]
+    return di, camera_rays(ki, u, v)
+
+
+def _pair_terms(capture: Capture, poses: np.ndarray, i: int, j: int, a: float, b: float, cfg: DepthCalibrationConfig,
+                target: tuple[np.ndarray, np.ndarray] | None = None, source: tuple[np.ndarray, np.ndarray] | None = None):
+    """Point-to-plane terms of frame ``i``'s depth against frame ``j``'s at the current
+    calibration ``true = a * measured + b``: ``(c0, ca, cb, depth, points, normals)`` with residual
+    ``c0 + a ca + b cb``, the measured depths of the points of frame ``i``, the points ``[N, 3]`` in
+    the world and frame ``j``'s surface normals ``[N, 3]`` there. ``target``: frame ``j``'s
+    :func:`_target_maps` at ``(a, b)``, ``source``: frame ``i``'s :func:`_source_samples`, when
+    already computed."""
+    kj = np.asarray(capture.depth_intrinsics[j], np.float64)
+    h, w = capture.depth.shape[1:]
+    di, rays = _source_samples(capture, i, cfg) if source is None else source
     ri, ci = poses[i][:3, :3], poses[i][:3, 3]
     rj, cj = poses[j][:3, :3], poses[j][:3, 3]
-    ray_i = camera_rays(ki, u, v) @ ri.T
+    ray_i = rays @ ri.T
     y = (ci + (a * di + b)[:, None] * ray_i - cj) @ rj
     z = y[:, 2]
     with np.errstate(divide="ignore", invalid="ignore"):
@@ -276,10 +287,11 @@ def _estimate(capture: Capture, world_from_camera: np.ndarray | None, config: De
     n_depth = 2 if config.estimate_depth else 0
     a, b, spread, count, initial = 1.0, 0.0, float("nan"), 0, float("nan")
     blocks = config.jackknife_blocks
+    samples = {i: _source_samples(capture, i, config) for i in sorted({i for i, _ in pairs})}
     for _ in range(config.iterations):
         poses = drift.apply(recorded, ts) if drift is not None else recorded
         targets = {j: _target_maps(capture, j, a, b, config) for j in sorted({j for _, j in pairs})}
-        sources = [([_pair_terms(capture, poses, i, j, a, b, config, targets[j]) for i, j in pairs], pairs)]
+        sources = [([_pair_terms(capture, poses, i, j, a, b, config, targets[j], samples[i]) for i, j in pairs], pairs)]
         del targets
         if matches:
             found = [(_feature_terms(capture, poses, i, j, pi, pj, a, b, config), (i, j)) for (i, j), (pi, pj) in matches.items()]

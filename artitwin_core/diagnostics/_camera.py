@@ -45,6 +45,17 @@ def _binned_mean(x: np.ndarray, y: np.ndarray, n: int) -> tuple[np.ndarray, np.n
     return 0.5 * (edges[1:] + edges[:-1]), np.where(counts > 0, sums / np.maximum(counts, 1), np.nan)
 
 
+def _scaled_least_squares(a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    """``argmin |a x - b|`` for a tall ``a [n, k]`` (k a few parameters, n up to millions of
+    pixels), through the normal equations of ``a`` with its columns scaled to unit norm (the
+    parameters' units differ by orders of magnitude): ``k x k`` work after one pass over ``a``,
+    where an SVD of ``a`` itself costs a copy and several passes. A column of zeros gets 0."""
+    scale = np.maximum(np.linalg.norm(a, axis=0), 1e-12)
+    an = a / scale
+    gram, rhs = an.T @ an, an.T @ b
+    return np.linalg.lstsq(gram, rhs, rcond=None)[0] / scale
+
+
 def _bilinear(img: np.ndarray, x: np.ndarray, y: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """Sample ``img [T, H, W, C]`` at pixel coordinates ``x, y [T, H, W]``.
 
@@ -177,9 +188,7 @@ class _Displacement(Effect):
                 cols.append((gx * dk[..., :1] + gy * dk[..., 1:])[ok].ravel())
             a = np.nan_to_num(np.stack(cols, 1))
             r = (mb - pb)[ok].ravel()
-            # Each column is scaled to unit norm: the parameters' units differ by orders of magnitude.
-            scale = np.maximum(np.linalg.norm(a, axis=0), 1e-12)
-            step = np.linalg.lstsq(a / scale, r, rcond=None)[0] / scale
+            step = _scaled_least_squares(a, r)
             theta = theta + self._limit(data, theta, step, d0)
         return theta
 
@@ -366,8 +375,7 @@ class PoseDrift(Effect):
             rows, rhs, _ = self._system(self.apply_to_target(data, params), t0, surface)
             if rows.shape[0] < 100:
                 break
-            scale = np.maximum(np.linalg.norm(rows, axis=0), 1e-12)
-            x = np.linalg.lstsq(rows / scale, rhs, rcond=None)[0] / scale
+            x = _scaled_least_squares(rows, rhs)
             for i, key in enumerate(("rot0_rad", "rot_rad_per_s", "trans0_m", "trans_m_per_s")):
                 params[key] = (np.asarray(params[key]) + x[3 * i: 3 * i + 3]).tolist()
         # The drift is the correction's inverse: about the first camera, D_t x ~ x + s (-w1 x (x - c0) - v1 - w1 x c0).
@@ -389,8 +397,7 @@ class PoseDrift(Effect):
             if sel.sum() < 100:
                 continue
             a = rows[sel][:, [0, 1, 2, 6, 7, 8]]
-            scale = np.maximum(np.linalg.norm(a, axis=0), 1e-12)
-            x = np.linalg.lstsq(a / scale, rhs[sel], rcond=None)[0] / scale
+            x = _scaled_least_squares(a, rhs[sel])
             y[:, t] = -(x[3:] + np.cross(x[:3], c0))  # drift of the point under the first camera
         w, v = self._per_frame(params, data)
         model = -(v + np.cross(w, c0)).T
