@@ -428,6 +428,11 @@ def report_from_sections(sections: list[tuple[str, Diagnosis, ResidualData]], ti
     )
 
 
+# The self-consistency fits stop once a re-association moves them by less than this: a hundredth
+# of the smallest gate they face (min_depth_error_m, the drift's few millimetres).
+_SELF_TOL_M = 1e-4
+
+
 def self_consistency(capture: CaptureArtifact, config: DiagnoseConfig) -> tuple[list[EffectFinding], list[str]]:
     """The static recording against itself, without the twin: findings for ``pose_drift`` and
     ``depth_scale_offset`` and the conclusion's lines.
@@ -446,15 +451,16 @@ def self_consistency(capture: CaptureArtifact, config: DiagnoseConfig) -> tuple[
     cap = to_core(Capture, capture)
     gate = core_kwargs(DriftSignificance.why_not, PoseDriftConfig())
     try:
-        joint = estimate_depth_calibration(cap, config=CoreCalibrationConfig(pose_drift=True),
+        joint = estimate_depth_calibration(cap, config=CoreCalibrationConfig(pose_drift=True, step_tolerance_m=_SELF_TOL_M),
                                            halves_gate=(gate["min_displacement_m"], gate["min_z"]))
     except InputError as e:
         return [], [f"{STATIC_SCOPE}: its frames' self-consistency could not be tested ({e})"]
     sig = joint.drift_significance
     why = sig.why_not(**gate)
     poses = joint.drift.apply(cap.world_from_camera, cap.timestamps) if not why else cap.world_from_camera
-    plain_recorded = estimate_depth_calibration(cap)
-    depth = estimate_depth_calibration(cap, world_from_camera=poses) if not why else plain_recorded
+    depth_only = CoreCalibrationConfig(step_tolerance_m=_SELF_TOL_M)
+    plain_recorded = estimate_depth_calibration(cap, config=depth_only)
+    depth = estimate_depth_calibration(cap, world_from_camera=poses, config=depth_only) if not why else plain_recorded
     z_ref = depth.reference_depth_m
     error = (depth.scale - 1.0) * z_ref + depth.offset_m
     depth_on = (

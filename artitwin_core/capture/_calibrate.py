@@ -104,6 +104,10 @@ def _normals(z: np.ndarray, k: np.ndarray) -> np.ndarray:
     return n / np.linalg.norm(n, axis=-1, keepdims=True)
 
 
+# ``DepthCalibrationConfig.step_tolerance_m`` measures a step at this distance from the camera.
+_TOLERANCE_REACH_M = 2.0
+
+
 def _target_maps(capture: Capture, j: int, a: float, b: float, cfg: DepthCalibrationConfig) -> tuple[np.ndarray, np.ndarray]:
     """Frame ``j`` as the target of :func:`_pair_terms`: its measured depth ``[H, W]`` (NaN where
     its confidence is too low) and the unit normals ``[H, W, 3]`` (camera frame) of its depth at
@@ -338,8 +342,11 @@ def _estimate(capture: Capture, world_from_camera: np.ndarray | None, config: De
                 "(all surfaces seen from one distance); record the scene from nearer and farther."
             )
         sol = np.linalg.solve(hess, -grad)
+        moved = 0.0  # how far this step moves the answer, metres (step_tolerance_m)
         if config.estimate_depth:
-            a, b = 1.0 / sol[0], sol[1] / sol[0]
+            a_new, b_new = 1.0 / sol[0], sol[1] / sol[0]
+            moved = abs((a_new - a) * _TOLERANCE_REACH_M + (b_new - b))
+            a, b = a_new, b_new
         if drift is not None:
             step = a * sol[n_depth:]
             drift = PoseDrift(
@@ -347,7 +354,10 @@ def _estimate(capture: Capture, world_from_camera: np.ndarray | None, config: De
                 rot_rate_rad_per_s=drift.rot_rate_rad_per_s + step[0] * gravity,
                 trans_rate_m_per_s=drift.trans_rate_m_per_s + step[1:4],
             )
+            moved = max(moved, float(ts[-1] - ts[0]) * (abs(step[0]) * _TOLERANCE_REACH_M + float(np.linalg.norm(step[1:4]))))
         count = int(sum(np.count_nonzero(w > 0) for _, w, _, _, _ in rows))
+        if moved < config.step_tolerance_m:
+            break
     # Jackknife over blocks of frames, at the last association and weights (the solution there is
     # the last step; each drop's is compared with it).
     cov = block_jackknife_cov(*(np.concatenate([r[k] for r in rows]) for k in range(4)))
