@@ -9,6 +9,16 @@ from schemas import JointParams, MaskSequenceArtifact, TrajectoriesArtifact
 from tasks.joints import JointConfig, fit_joints
 
 
+def _tracks_of_parts(trajs) -> TrajectoriesArtifact:
+    """One trajectories artifact holding each simulated part's tracks, part ``k``'s with part id ``k``."""
+    return TrajectoriesArtifact(
+        points_in_world=np.concatenate([t.points_in_world for t in trajs], axis=1),
+        pixels=np.concatenate([t.pixels for t in trajs], axis=1).astype(np.float32),
+        valid=np.concatenate([t.valid for t in trajs], axis=1),
+        part_ids=np.repeat(np.arange(len(trajs), dtype=np.int32), [t.valid.shape[1] for t in trajs]),
+    )
+
+
 def test_two_parts_get_their_own_joints():
     rng = np.random.default_rng(7)
     truths, trajs = [], []
@@ -17,12 +27,7 @@ def test_two_parts_get_their_own_joints():
         traj, _ = simulate_trajectories(joint, closed, rng, noise_m=0.001, outlier_fraction=0.1)
         truths.append(joint)
         trajs.append(traj)
-    art = TrajectoriesArtifact(
-        points_in_world=np.concatenate([t.points_in_world for t in trajs], axis=1),
-        pixels=np.concatenate([t.pixels for t in trajs], axis=1).astype(np.float32),
-        valid=np.concatenate([t.valid for t in trajs], axis=1),
-        part_ids=np.repeat(np.arange(2, dtype=np.int32), [t.valid.shape[1] for t in trajs]),
-    )
+    art = _tracks_of_parts(trajs)
     t = art.valid.shape[0]
     labels = np.zeros((t, 2, 3), np.uint8)
     labels[:, 0, 0], labels[:, 1, 1], labels[:, 1, 2] = 1, 2, 3  # label 3 has no tracks at all
@@ -118,12 +123,7 @@ def test_screw_joint_named_for_one_joint_models_that_joint_only():
     for _ in range(2):
         joint, closed = random_part_joint("revolute", 120, 20, rng)
         trajs.append(simulate_trajectories(joint, closed, rng, noise_m=0.001, outlier_fraction=0.05)[0])
-    art = TrajectoriesArtifact(
-        points_in_world=np.concatenate([t.points_in_world for t in trajs], axis=1),
-        pixels=np.concatenate([t.pixels for t in trajs], axis=1).astype(np.float32),
-        valid=np.concatenate([t.valid for t in trajs], axis=1),
-        part_ids=np.repeat(np.arange(2, dtype=np.int32), [t.valid.shape[1] for t in trajs]),
-    )
+    art = _tracks_of_parts(trajs)
     t = art.valid.shape[0]
     labels = np.zeros((t, 1, 2), np.uint8)
     labels[:, 0, 0], labels[:, 0, 1] = 1, 2
