@@ -86,10 +86,10 @@ CLEAN = [("exposure_white_balance", "static"), ("exposure_white_balance", "dynam
 SIZE = 2
 
 
-def _scene(root: Path, seed: int, effects: tuple) -> Path:
+def _scene(root: Path, seed: int, effects: tuple, size: int) -> Path:
     tiny = BENCHMARK_SCENES["tiny"]
     spec = replace(tiny, static_frames=16, seed=seed, effects=effects,
-                   rgb_size=tuple(SIZE * v for v in tiny.rgb_size), depth_size=tuple(SIZE * v for v in tiny.depth_size))
+                   rgb_size=tuple(size * v for v in tiny.rgb_size), depth_size=tuple(size * v for v in tiny.depth_size))
     write_scene(generate_scene(spec), root / "scene")
     return root / "scene"
 
@@ -162,7 +162,7 @@ def _heldout_cuts(a: Path, b: Path, scopes: list[str], effect_target: str) -> di
     return out
 
 
-def injected_row(case: str, where: str, seed: int, root: Path) -> dict:
+def injected_row(case: str, where: str, seed: int, root: Path, size: int = SIZE) -> dict:
     params, effect = CASES[case]
     if case == "screw_joint":
         where, injected = "joint", (("screw_joint", params),)
@@ -170,7 +170,7 @@ def injected_row(case: str, where: str, seed: int, root: Path) -> dict:
         injected = ((case, {**params, "recordings": where}),)
     if case == "exposure":  # a phone's auto exposure moves the white balance with it
         injected += (("white_balance", {"gain_std": 0.06, "recordings": where}),)
-    scene = _scene(root, seed, injected)
+    scene = _scene(root, seed, injected, size)
     store = ArtifactStore(str(root / "store"))
     base = PipelineConfig.preset("quick")
     t_a, _ = _run(scene, base, store, root / "a")
@@ -200,8 +200,8 @@ def injected_row(case: str, where: str, seed: int, root: Path) -> dict:
                   "passed": bool(named and not elsewhere and cut >= 0.5 and not rose)}
 
 
-def clean_rows(seed: int, root: Path, pairs: list[tuple[str, str]]) -> list[dict]:
-    scene = _scene(root, seed, ())
+def clean_rows(seed: int, root: Path, pairs: list[tuple[str, str]], size: int = SIZE) -> list[dict]:
+    scene = _scene(root, seed, (), size)
     store = ArtifactStore(str(root / "store"))
     base = PipelineConfig.preset("quick")
     _run(scene, base, store, root / "plain")
@@ -222,7 +222,6 @@ def clean_rows(seed: int, root: Path, pairs: list[tuple[str, str]]) -> list[dict
 
 
 def main() -> None:
-    global SIZE
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--cases", nargs="*", default=list(CASES), choices=list(CASES), help="effects injected (none: only --clean)")
     ap.add_argument("--where", nargs="+", default=list(SCOPE), choices=list(SCOPE), help="recordings injected into")
@@ -233,19 +232,18 @@ def main() -> None:
     ap.add_argument("--name", default="effect_scopes", help="results file bench/results/NAME.json")
     ap.add_argument("--keep", type=Path, default=None, help="keep the scenes, stores and runs under this folder")
     args = ap.parse_args()
-    SIZE = args.size
     rows = []
     with tempfile.TemporaryDirectory() as tmp:
         tmp = args.keep or tmp
         for case in args.cases:
             for where in (["joint"] if case == "screw_joint" else args.where):
-                rows.append(injected_row(case, where, args.seed, Path(tmp) / f"{case}-{where}"))
+                rows.append(injected_row(case, where, args.seed, Path(tmp) / f"{case}-{where}", args.size))
                 print_table([{k: v for k, v in rows[-1].items() if k != "targets"}])
         if args.clean:
             pairs = CLEAN if args.clean_effects is None else [(e.partition(":")[2], e.partition(":")[0]) for e in args.clean_effects]
-            rows += clean_rows(args.seed, Path(tmp) / "clean", pairs)
+            rows += clean_rows(args.seed, Path(tmp) / "clean", pairs, args.size)
     print_table([{k: v for k, v in r.items() if k != "targets"} for r in rows])
-    write_results(args.name, rows, {"seed": args.seed, "preset": "quick", "scene": f"tiny x{SIZE}, 16 static frames"})
+    write_results(args.name, rows, {"seed": args.seed, "preset": "quick", "scene": f"tiny x{args.size}, 16 static frames"})
 
 
 if __name__ == "__main__":

@@ -114,17 +114,23 @@ def scope_bare_effects(names: list[str], report: DiagnosisReport | None) -> list
     """``--effect`` entries with each bare per-recording name (``exposure_white_balance``) put in
     the scope(s) the diagnosis ``report`` found it in (enabled there); a name the diagnosis did
     not enable anywhere, or with no diagnosis at all, keeps its default scope (the static recording)."""
-    from schemas._configs import EFFECT_SCOPES, PER_RECORDING_EFFECTS, effect_scope, split_effect
+    from schemas._configs import EFFECT_SCOPES, PER_RECORDING_EFFECTS, effect_scope, scope_kind, split_effect
 
     out = []
     for entry in names:
         scope, name, _ = split_effect(entry)
         found = []
-        if scope is None and report is not None and (name in PER_RECORDING_EFFECTS or EFFECT_SCOPES.get(name) == ("joint",)):
+        if scope is None and report is not None and (name in PER_RECORDING_EFFECTS or "joint" in EFFECT_SCOPES.get(name, ())):
             for e in report.enabled:
                 where, _, n = e.rpartition("/")
-                if n == name and (where in ("static recording", "dynamic recording") or where.startswith("joint_")):
-                    found.append(f"{effect_scope(where)}:{entry}")
+                if n != name:
+                    continue
+                try:
+                    short = effect_scope(where)
+                except ValueError:  # a scope no --effect can name
+                    continue
+                if scope_kind(short) in EFFECT_SCOPES[name]:
+                    found.append(f"{short}:{entry}")
         out += found or [entry]
     return out
 

@@ -33,7 +33,7 @@ from scipy.ndimage import gaussian_filter
 
 from artitwin_core.diagnostics._patch import drift_columns
 from artitwin_core.diagnostics._plugin import Effect, Evidence, register_effect
-from artitwin_core.diagnostics._residuals import TRACK_FIELDS, ResidualData
+from artitwin_core.diagnostics._residuals import NOT_READ_BY_IMAGE_EFFECTS, ResidualData
 from artitwin_core.geometry import axis_angle_to_matrix, backproject, pixel_grid
 
 
@@ -132,7 +132,7 @@ class _Displacement(Effect):
     target = "photometric"
     # The displaced prediction and the timing effects' image velocity read RGB, the predicted
     # depth, the poses and times; never the assumed sigma(z) or the tracks.
-    unaffected_by = TRACK_FIELDS | {"depth_sigma"}
+    unaffected_by = NOT_READ_BY_IMAGE_EFFECTS
     param_names: tuple[str, ...] = ()
     steps: tuple[float, ...] = ()
     # Coarse to fine: Gaussian blur (pixels) of both images at each Gauss-Newton step.

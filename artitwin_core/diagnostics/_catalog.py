@@ -17,6 +17,7 @@ import numpy as np
 from artitwin_core.diagnostics._patch import depth_affine_columns
 from artitwin_core.diagnostics._plugin import Effect, Evidence, register_effect
 from artitwin_core.diagnostics._residuals import (
+    NOT_READ_BY_IMAGE_EFFECTS,
     RGB_PREDICTION_FIELDS,
     TRACK_FIELDS,
     ResidualData,
@@ -44,7 +45,7 @@ class ExposureWhiteBalance(Effect):
 
     name = "exposure_white_balance"
     target = "photometric"
-    unaffected_by = TRACK_FIELDS | {"depth_sigma"}  # reads RGB only
+    unaffected_by = NOT_READ_BY_IMAGE_EFFECTS  # reads RGB only
     description = "Per-frame per-channel gain g and offset o on linear RGB: measured = g * predicted + o."
 
     def applies(self, data: ResidualData) -> bool:
@@ -101,7 +102,7 @@ class Vignetting(Effect):
 
     name = "vignetting"
     target = "photometric"
-    unaffected_by = TRACK_FIELDS | {"depth_sigma"}  # reads RGB only
+    unaffected_by = NOT_READ_BY_IMAGE_EFFECTS  # reads RGB only
     description = "Radial gain 1 + c1 r^2 + c2 r^4 on linear RGB, shared by every frame."
 
     def applies(self, data: ResidualData) -> bool:

@@ -23,6 +23,7 @@ TARGETS = ("photometric", "depth", "depth-noise", "joint-tracks")
 # tracks, and one that reads no depth model never reads the assumed sigma(z).
 TRACK_FIELDS = frozenset({"tracks", "tracks_obs", "tracks_valid", "track_noise_m"})
 RGB_PREDICTION_FIELDS = frozenset({"rgb_pred", "rgb_pred_hi"})
+NOT_READ_BY_IMAGE_EFFECTS = TRACK_FIELDS | {"depth_sigma"}
 
 # Depth residuals beyond this are mismatched surfaces (edges, missing geometry), not sensor effects.
 DEPTH_OUTLIER_M = 0.15
@@ -161,7 +162,7 @@ class ResidualData:
         out = []
         for f in fields(self):
             a, b = getattr(self, f.name), getattr(other, f.name)
-            if a is b or (not isinstance(a, np.ndarray) and isinstance(a, tuple | int | float | str) and a == b):
+            if a is b or (isinstance(a, tuple | int | float | str) and a == b):
                 continue
             out.append(f.name)
         return frozenset(out)
