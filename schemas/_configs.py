@@ -406,7 +406,10 @@ class FramePoseStageConfig(StageConfig):
 # the pixels trained on, the diagnosis's with the pixels compared (docs/performance.md: what each costs).
 CPU_RECONSTRUCT = {"train_max_side": 384, "steps": 800, "max_init_points": 15_000, "max_gaussians": 30_000}
 CPU_ARTICULATE = {"train_max_side": 256, "phase1_steps": 200, "phase2_steps": 100}
-CPU_PREDICT = {"max_side": 256, "max_frames": 16, "run_frames": 4}
+# The diagnosis's prediction, on a GPU too: the renders are the GPU's, but the effect fits that read
+# them are numpy on the CPU, and their cost grows with the frames and pixels compared (scene (a):
+# 29 s at this size against 164 s for every frame at full size, on 2 cores; docs/performance.md).
+DIAGNOSIS_PREDICT = {"max_side": 256, "max_frames": 16, "run_frames": 4}
 
 
 class PipelineConfig(StageConfig):
@@ -542,7 +545,9 @@ class PipelineConfig(StageConfig):
           scaled to that resolution with sequential and loop-closure matching beyond 40 frames,
           and 3DGS budgets (steps, Gaussians, training resolution) sized for minutes on 2 cores.
           ``gpu=True`` (CUDA with gsplat; the caller says, e.g. ``flows.gpu_available()``):
-          native resolution, 300 keyframes, and a GPU budget (1M Gaussians, 7000 steps).
+          native resolution, 300 keyframes, and a GPU budget (1M Gaussians, 7000 steps); the
+          diagnosis's prediction is bounded as on the CPU (16 frames at 256 px), since its effect
+          fits run on the CPU whatever renders the prediction.
         - ``"quick"``: the built-in example and the tests: small scenes, a short 3DGS schedule,
           fewer features.
         - ``"full"``: every stage config's own defaults (no resolution cap, no keyframes, the
@@ -570,11 +575,12 @@ class PipelineConfig(StageConfig):
                 reconstruct=ReconstructConfig(steps=7000, max_init_points=200_000, max_gaussians=1_000_000),
                 articulate=ArticulateConfig(phase1_steps=1500, phase2_steps=750, seed_max_points=100_000,
                                             seed_background_max_points=100_000),
+                predict_views=PredictViewsConfig(**DIAGNOSIS_PREDICT),
             )
         return cls(
             ingest=IngestConfig(rgb_max_side=640, keyframes_max=100),
             refine_poses=poses,
             reconstruct=ReconstructConfig(**CPU_RECONSTRUCT),
             articulate=ArticulateConfig(**CPU_ARTICULATE),
-            predict_views=PredictViewsConfig(**CPU_PREDICT),
+            predict_views=PredictViewsConfig(**DIAGNOSIS_PREDICT),
         )
