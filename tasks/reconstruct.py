@@ -116,7 +116,8 @@ def _with_poses(capture: CaptureArtifact, poses: CameraPoses) -> Capture:
     return to_core(Capture, capture, world_from_camera=poses.world_from_camera)
 
 
-@stage(name="reconstruct", version=2, config=ReconstructConfig, output=GaussianCheckpoint)
+# 3: the exposure model learns per-frame gains only (no offset).
+@stage(name="reconstruct", version=3, config=ReconstructConfig, output=GaussianCheckpoint)
 def reconstruct_canonical(capture: CaptureArtifact, poses: CameraPoses, config: ReconstructConfig) -> GaussianCheckpoint:
     """Train the canonical 3DGS model of the static recording with the refined ``poses``.
 

@@ -30,7 +30,6 @@ def test_numpy_and_torch_forms_agree():
     sp = SensorParams(("exposure_white_balance", "vignetting", "depth_scale_offset"), [2, 5, 9], k, 64, 48)
     with torch.no_grad():
         sp.params["log_gain"][:] = torch.tensor([[0.0, 0.0, 0.0], [0.3, 0.1, -0.2], [-0.4, 0.0, 0.2]])
-        sp.params["offset"][:] = torch.tensor([[0.0, 0.0, 0.0], [0.01, 0.0, -0.01], [0.0, 0.02, 0.0]])
         sp.params["vignetting"][:] = torch.tensor([-0.3, -0.05])
         sp.params["depth_affine"][:] = torch.tensor([1.03, 0.01])
     model = sp.to_model()

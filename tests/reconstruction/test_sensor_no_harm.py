@@ -35,6 +35,7 @@ def test_modelling_an_absent_camera_effect_costs_no_heldout_psnr():
         train(state, views, TrainConfig.with_schedule(300, max_gaussians=16_000, sensor_effects=effects))
         psnr[effects] = evaluate_views(state.to_params(), cap, cap.world_from_camera, test_f,
                                        sensor=state.sensor_model()).summary()["psnr_db"]
-    # Measured: 28.81 dB without, 28.56 with exposure (-0.25), 28.73 with vignetting (-0.09).
+    # Measured: 28.81 dB without, 28.97 with exposure (+0.16; -0.25 when it also learned a per-frame
+    # offset), 28.73 with vignetting (-0.09).
     for effects in (("exposure_white_balance",), ("vignetting",)):
         assert abs(psnr[effects] - psnr[()]) < 0.3, psnr
