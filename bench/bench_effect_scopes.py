@@ -41,11 +41,12 @@ from _common import print_table, write_results
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
-from artitwin_core.diagnostics._runs import curve_shift  # noqa: E402
+from artitwin_core.diagnostics._runs import curve_shift, metric_shift  # noqa: E402
 from artitwin_core.synth import BENCHMARK_SCENES, generate_scene, write_scene  # noqa: E402
 from flows._pipeline import build_summary, write_summary  # noqa: E402
 from flows._runner import InlineExecutor  # noqa: E402
 from flows._runs import (  # noqa: E402
+    SELF_CONSISTENCY_TARGETS,
     comparison_targets,
     diagnosis_of,
     rank_findings,
@@ -111,6 +112,8 @@ def _compare(a: Path, b: Path) -> tuple[list[dict], list[str]]:
     out = []
     for label, curve, entry in targets:
         shift = curve_shift(ra, rb, curve)
+        if shift is None and (scalar := metric_shift(ra, rb, curve)) is not None:
+            shift = (scalar[0], scalar[1], 0, scalar[2])  # measured once per run: no frames
         if shift is not None:
             ma, mb, n, _ = shift
             out.append({"curve": label, "entry": entry, "before": ma, "after": mb, "cut": 1 - mb / ma if ma else math.nan, "frames": n})
@@ -148,15 +151,19 @@ def _named_first(ranked: list, scope: str, effect: str) -> bool:
     return mine is not None and next(f for f in on if f.target == mine.target) is mine
 
 
-def _heldout_cuts(a: Path, b: Path, scopes: list[str], effect_target: str) -> dict[str, float]:
+def _heldout_cuts(a: Path, b: Path, scopes: list[str], effect_target: str, effect: str) -> dict[str, float]:
     """Per scope, the cut of the diagnosis's held-out error on the effect's target (A's twin
-    against B's: ``heldout_<error>_before`` of each run)."""
+    against B's: ``heldout_<error>_before`` of each run); for a target of the recording's
+    agreement with itself, the cut of that disagreement (``SELF_CONSISTENCY_TARGETS``: no twin is
+    fitted to it, so there is nothing to hold out)."""
     ra, rb = run_record(a), run_record(b)
     err = HELDOUT_ERROR[effect_target]
     out = {}
     for s in scopes:
         stage = "diagnose_dynamic" if s == "dynamic recording" else "diagnose"
         key = f"{stage}/{s}/heldout_{err}_before"
+        if effect_target == "self-consistency" and effect in SELF_CONSISTENCY_TARGETS:
+            key = f"{stage}/{s}/{SELF_CONSISTENCY_TARGETS[effect]}"
         if key in ra.metrics and key in rb.metrics and ra.metrics[key] > 0:
             out[s] = 1.0 - rb.metrics[key] / ra.metrics[key]
     return out
@@ -193,7 +200,7 @@ def injected_row(case: str, where: str, seed: int, root: Path, size: int = SIZE)
     ours = [t for t in targets if t["entry"].split(":")[-1].split("=")[0] == effect]
     cut_rms = min((t["cut"] for t in ours), default=math.nan)
     found = next((f for f in ranked if f.name == effect and f.scope in scopes), None)
-    cuts = _heldout_cuts(root / "a", root / "b", scopes, found.target if found is not None else "photometric")
+    cuts = _heldout_cuts(root / "a", root / "b", scopes, found.target if found is not None else "photometric", effect)
     cut = min(cuts.values(), default=math.nan)
     return row | {"cut": cut, "cut_by_scope": cuts, "compare_lead_cut": cut_rms, "regressions": rose, "targets": targets,
                   "rerun_s": t_b, "rerun_stages_computed": recomputed,

@@ -251,6 +251,13 @@ EFFECT_CURVES = {
     "pose_lag": ("depth", "depth_rms_m"),
     "screw_joint": ("joint tracks", "track_rms_m"),
 }
+# Effects of the static recording whose target is its agreement with itself (a twin trained on the
+# biased depth or the drifting poses absorbs them): the metric of the static diagnosis led with
+# instead of a curve, where both runs have it (tasks.diagnose.self_consistency_metrics).
+SELF_CONSISTENCY_TARGETS = {
+    "depth_scale_offset": "self_consistency_depth_error_m",
+    "pose_drift": "self_consistency_drift_m",
+}
 
 
 def _scopes_of(entry: str, curve_scopes: list[str]) -> list[str]:
@@ -279,9 +286,14 @@ def comparison_targets(ra: RunRecord, rb: RunRecord) -> tuple[list[tuple[str, st
     for entry in rb.effects:
         if _canonical(entry) in have or entry.split(":")[-1].split("=")[0] not in EFFECT_CURVES:
             continue
-        target, leaf = EFFECT_CURVES[entry.split(":")[-1].split("=")[0]]
+        effect = entry.split(":")[-1].split("=")[0]
+        target, leaf = EFFECT_CURVES[effect]
         for scope in _scopes_of(entry, curve_scopes):
-            targets.append((f"{scope}, {target} ({leaf})", f"diagnose/{scope}/{leaf}", entry))
+            own = f"diagnose/{scope}/{SELF_CONSISTENCY_TARGETS.get(effect, '')}"
+            if effect in SELF_CONSISTENCY_TARGETS and own in ra.metrics and own in rb.metrics:
+                targets.append((f"{scope}, agreement with itself ({own.rsplit('/', 1)[-1]})", own, entry))
+            else:
+                targets.append((f"{scope}, {target} ({leaf})", f"diagnose/{scope}/{leaf}", entry))
     others = [(f"{c.split('/')[1]}, {c.split('/')[-1]}", c) for c in curves if c.count("/") >= 2]
     return targets, others
 

@@ -571,7 +571,8 @@ def _with_findings(report: DiagnosisReport, scope: str, findings: list[EffectFin
     })
 
 
-@stage(name="diagnose", version=9, config=DiagnoseConfig, output=DiagnosisReport)
+# 10: the self-consistency metrics (self_consistency_metrics).
+@stage(name="diagnose", version=10, config=DiagnoseConfig, output=DiagnosisReport)
 def diagnose_twin(
     capture: CaptureArtifact,
     prediction: ViewPrediction,
@@ -592,7 +593,30 @@ def diagnose_twin(
             lines = [line for line in lines if any(f"--effect {f.name}" in line for f in findings)]
     lag_findings, lag_lines = _lag_findings(pose_lag, STATIC_SCOPE, config)
     report = _with_positions(report, STATIC_SCOPE, capture, prediction)
+    report = report.model_copy(update={"metrics": {**report.metrics, **self_consistency_metrics(findings)}})
     return _with_findings(report, STATIC_SCOPE, findings + lag_findings, lines + lag_lines)
+
+
+def self_consistency_metrics(findings: list[EffectFinding]) -> dict[str, float]:
+    """The static recording's disagreement with itself, as metrics ``artitwin compare`` can lead
+    with: the depth error at the reference depth (``self_consistency_depth_error_m``) and the
+    linear drift's displacement by the last frame (``self_consistency_drift_m``), each with its
+    standard error (``..._se``). These are what ``depth_scale_offset`` and ``pose_drift`` in the
+    static recording target: a twin trained on the biased depth or drifting poses absorbs them, so
+    its residual against the sensors hardly shows them, while the recording's frames, corrected,
+    agree with each other. Found whether or not the effect was enabled."""
+    out = {}
+    for f in findings:
+        p = f.params
+        if f.name == "depth_scale_offset" and "error_m" in p:
+            out[f"{STATIC_SCOPE}/self_consistency_depth_error_m"] = abs(float(p["error_m"]))
+            out[f"{STATIC_SCOPE}/self_consistency_depth_error_m_se"] = float(p["error_se_m"])
+        elif f.name == "pose_drift" and "displacement_m" in p:
+            size = float(np.linalg.norm(p["displacement_m"]))
+            z = p.get("z_score")
+            out[f"{STATIC_SCOPE}/self_consistency_drift_m"] = size
+            out[f"{STATIC_SCOPE}/self_consistency_drift_m_se"] = size / float(z) if z else float("nan")
+    return out
 
 
 @stage(name="diagnose_static", version=3, config=DiagnoseConfig, output=DiagnosisReport)

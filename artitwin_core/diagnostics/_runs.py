@@ -21,7 +21,7 @@ from artitwin_core.diagnostics._report import svg_plot
 
 _HIGHER = re.compile(r"(psnr|ssim|inlier_frac|explained)")
 _LOWER = re.compile(r"(mae|rms|energy|error|residual|nll|_deg$|_m$)")
-_NOT_QUALITY = re.compile(r"(_count$|seconds|floor|pose_correction|sensor_|_frac$|gaussians|_after$)")
+_NOT_QUALITY = re.compile(r"(_count$|seconds|floor|pose_correction|sensor_|_frac$|gaussians|_after$|_se$)")
 
 
 def better_direction(name: str) -> int:
@@ -134,16 +134,38 @@ def curve_shift(a: RunRecord, b: RunRecord, name: str) -> tuple[float, float, in
     return ma, mb, int(ok.size), bool(beyond)
 
 
+def metric_shift(a: RunRecord, b: RunRecord, name: str) -> tuple[float, float, bool] | None:
+    """``(A, B, beyond noise)`` of the scalar metric ``name`` (a quantity measured once per run,
+    e.g. the static recording's self-consistency depth error); beyond noise when the two differ by
+    more than ``NOISE_SE`` of their combined standard errors (the metrics ``NAME_se``, when the
+    runs record them) and ``NOISE_REL`` of A. None when either run lacks it."""
+    if name not in a.metrics or name not in b.metrics:
+        return None
+    va, vb = float(a.metrics[name]), float(b.metrics[name])
+    if not (np.isfinite(va) and np.isfinite(vb)):
+        return None
+    se = float(np.hypot(*(np.nan_to_num(float(r.metrics.get(name + "_se", 0.0))) for r in (a, b))))
+    return va, vb, bool(abs(vb - va) > max(NOISE_SE * se, NOISE_REL * abs(va)))
+
+
+def _verdict(ma: float, mb: float, beyond: bool) -> str:
+    return ("the loop worked" if mb < ma else "it rose: the modelling made it worse") if beyond else "no change beyond noise"
+
+
 def _lead(a: RunRecord, b: RunRecord, targets, others) -> tuple[list[str], list[str]]:
     lead, regressions = [], []
     for label, name, effect in targets:
         shift = curve_shift(a, b, name)
+        scalar = metric_shift(a, b, name) if shift is None else None
+        if scalar is not None:
+            va, vb, beyond = scalar
+            lead.append(f"{label}: {va:.3g} -> {vb:.3g}, {_pct(va, vb)} ({effect}: {_verdict(va, vb, beyond)}).")
+            continue
         if shift is None:
             lead.append(f"{label}: not measured in both runs ({name}); the effect {effect} cannot be judged.")
             continue
         ma, mb, n, beyond = shift
-        verdict = ("the loop worked" if mb < ma else "it rose: the modelling made it worse") if beyond else "no change beyond noise"
-        lead.append(f"{label}, held-out: {ma:.3g} -> {mb:.3g}, {_pct(ma, mb)} over {n} frames ({effect}: {verdict}).")
+        lead.append(f"{label}, held-out: {ma:.3g} -> {mb:.3g}, {_pct(ma, mb)} over {n} frames ({effect}: {_verdict(ma, mb, beyond)}).")
     targeted = {name for _, name, _ in targets}
     for label, name in others:
         if name in targeted:

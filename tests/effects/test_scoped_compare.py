@@ -46,3 +46,28 @@ def test_noise_is_judged_on_the_heldout_frames():
     b = _record("b", [], np.full(20, 0.051), np.full(20, 0.03))  # +2 %: within the 5 % floor
     ma, mb, n, beyond = curve_shift(a, b, DYN)
     assert n == 4 and not beyond and mb > ma
+
+
+def test_a_depth_error_the_twin_absorbed_is_judged_by_the_recording_against_itself():
+    """A twin trained on biased depth absorbs it: its depth curve does not move when the bias is
+    modelled. The static recording's disagreement with itself does, and compare leads with it."""
+    depth = "diagnose/static recording/depth_rms_m"
+    own = "diagnose/static recording/self_consistency_depth_error_m"
+    held = list(range(0, 20, 5))
+
+    def rec(name, effects, error_m, se_m):
+        return RunRecord(name=name, effects=effects, per_frame={depth: [0.02] * 20}, heldout={depth: held},
+                         metrics={own: error_m, own + "_se": se_m})
+
+    a = rec("a", [], 0.0685, 0.0004)
+    b = rec("b", ["depth_scale_offset"], 0.0011, 0.0004)
+    targets, _ = comparison_targets(a, b)
+    assert targets == [("static recording, agreement with itself (self_consistency_depth_error_m)", own, "depth_scale_offset")]
+    lead = compare_runs(a, b, *comparison_targets(a, b)).lead[0]
+    assert "0.0685 -> 0.0011, -98%" in lead and "the loop worked" in lead, lead
+    # Within two combined standard errors: no change beyond noise.
+    c = rec("c", ["depth_scale_offset"], 0.0675, 0.0004)
+    assert "no change beyond noise" in compare_runs(a, c, *comparison_targets(a, c)).lead[0]
+    # A run without the metric (an older diagnosis) falls back to the depth curve.
+    d = RunRecord(name="d", effects=["depth_scale_offset"], per_frame={depth: [0.02] * 20}, heldout={depth: held})
+    assert comparison_targets(a, d)[0] == [("static recording, depth (depth_rms_m)", depth, "depth_scale_offset")]

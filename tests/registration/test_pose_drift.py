@@ -230,7 +230,7 @@ def test_the_diagnosis_finds_a_drift_and_a_depth_error_from_the_recording_itself
     """The twin-based tests cannot tell a drift or a depth error from a short-trained twin's own
     geometry; the static recording's self-consistency can, and names the effect to model."""
     from schemas._diagnose import DiagnoseConfig
-    from tasks.diagnose import self_consistency
+    from tasks.diagnose import self_consistency, self_consistency_metrics
 
     def enabled(scene):
         findings, lines = self_consistency(to_artifact(CaptureArtifact, scene.static), DiagnoseConfig())
@@ -243,5 +243,10 @@ def test_the_diagnosis_finds_a_drift_and_a_depth_error_from_the_recording_itself
     on, found = enabled(_door(("depth_bias", BIAS)))
     assert on == ["depth_scale_offset"]
     assert found["depth_scale_offset"].params["scale"] == pytest.approx(1.03, abs=0.004)
+    # The metrics compare leads with when depth_scale_offset is modelled (the twin absorbs the bias).
+    err = "static recording/self_consistency_depth_error_m"
+    biased = self_consistency_metrics(list(found.values()))
+    assert biased[err] > 10 * biased[err + "_se"]
     on, found = enabled(clean)
     assert on == [] and not any(f.significant for f in found.values())
+    assert self_consistency_metrics(list(found.values()))[err] < 0.2 * biased[err]
