@@ -184,15 +184,28 @@ def write_r3d(capture: Capture, path: str | Path) -> Path:
     path.parent.mkdir(parents=True, exist_ok=True)
     meta = build_metadata(capture)
     with zipfile.ZipFile(path, "w") as zf:
-        zf.writestr("metadata", json.dumps(meta), compress_type=zipfile.ZIP_DEFLATED)
+        _put(zf, "metadata", json.dumps(meta), zipfile.ZIP_DEFLATED)
         icon = cv2.resize(capture.rgb[0], (max(1, capture.rgb_size[0] // 4), max(1, capture.rgb_size[1] // 4)),
                           interpolation=cv2.INTER_AREA)
-        zf.writestr("icon", encode_jpeg(icon))
+        _put(zf, "icon", encode_jpeg(icon))
         for t, i in enumerate(capture.frame_ids.tolist()):
-            zf.writestr(f"rgbd/{i}.jpg", encode_jpeg(capture.rgb[t]))
+            _put(zf, f"rgbd/{i}.jpg", encode_jpeg(capture.rgb[t]))
             d = np.ascontiguousarray(capture.depth[t], dtype="<f4")
-            zf.writestr(f"rgbd/{i}.depth", lzfse.compress(d.tobytes()))
+            _put(zf, f"rgbd/{i}.depth", lzfse.compress(d.tobytes()))
             if capture.confidence is not None:
                 c = np.ascontiguousarray(capture.confidence[t], dtype=np.uint8)
-                zf.writestr(f"rgbd/{i}.conf", lzfse.compress(c.tobytes()))
+                _put(zf, f"rgbd/{i}.conf", lzfse.compress(c.tobytes()))
     return path
+
+
+# Every entry is dated zip's earliest date, not the time of writing: the archive's bytes then
+# depend on the capture alone, so a scene written again (``artitwin synth``, the benchmarks) keeps
+# its content key and a rerun on the same store reuses what was computed from it.
+_ZIP_EPOCH = (1980, 1, 1, 0, 0, 0)
+
+
+def _put(zf: zipfile.ZipFile, name: str, data: str | bytes, compress_type: int = zipfile.ZIP_STORED) -> None:
+    info = zipfile.ZipInfo(name, date_time=_ZIP_EPOCH)
+    info.compress_type = compress_type
+    info.external_attr = 0o600 << 16  # as ZipFile.writestr(name) sets it
+    zf.writestr(info, data)
