@@ -619,7 +619,8 @@ def self_consistency_metrics(findings: list[EffectFinding]) -> dict[str, float]:
     return out
 
 
-@stage(name="diagnose_static", version=3, config=DiagnoseConfig, output=DiagnosisReport)
+# 4: the self-consistency metrics, as diagnose.
+@stage(name="diagnose_static", version=4, config=DiagnoseConfig, output=DiagnosisReport)
 def diagnose_static(
     capture: CaptureArtifact, prediction: ViewPrediction, config: DiagnoseConfig, pose_lag: PoseLagResult | None = None
 ) -> DiagnosisReport:
