@@ -13,6 +13,10 @@
 #      on CUDA against the CPU from one seed)
 #   3. after the last part: bench/bench_end_to_end.py on the carried scene, GPU preset, export skipped
 #      (its usd-core and coacd are not carried): per-stage seconds and peak memory, and the joints.
+#      E2E_WORKERS (default 4) stages run at once; E2E_THREADS, when set, caps every library's
+#      threads (--threads): four stages in one process, each library sized for all 16 cores, may be
+#      why the CPU stages gained little there (docs/performance.md), e.g.
+#      run(command="E2E_THREADS=4 bash bench/gpu_check.sh", carry=[".whl/2"]).
 # Logs and results come back under $OUT. Without a GPU (a dry run) every step says why it is skipped.
 set -u -o pipefail
 OUT=${OUT:-/tmp/gpu_check_out}
@@ -148,7 +152,8 @@ if [ -d "$STASH/scene" ] && has open3d && has pycolmap && has pydantic && has za
   if [ "$gpu" = 1 ] && [ -f "$STASH/gsplat.built" ]; then
     log "end-to-end benchmark on $STASH/scene (GPU preset)"
     "$PY" bench/bench_end_to_end.py --scenes a-door --scene-dir "$STASH/scene" --skip-stages export \
-      --workers "${E2E_WORKERS:-4}" --workdir "$STASH/e2e" --name end_to_end_gpu 2>&1 | tee "$OUT/end_to_end.log" | tail -40
+      --workers "${E2E_WORKERS:-4}" ${E2E_THREADS:+--threads "$E2E_THREADS"} --workdir "$STASH/e2e" --name end_to_end_gpu \
+      2>&1 | tee "$OUT/end_to_end.log" | tail -40
     cp bench/results/end_to_end_gpu.json "$OUT/" 2>/dev/null
   else
     log "end-to-end benchmark skipped: no CUDA device or gsplat not built (dry run)"
