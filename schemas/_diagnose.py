@@ -94,6 +94,12 @@ class DiagnoseConfig(StageConfig):
         "keypoints agree only under a linear pose drift (gated as PoseDriftConfig's defaults gate it) or a depth "
         "scale and offset (artitwin_core.capture.estimate_depth_calibration).",
     )
+    self_consistency_min_depth_pixels: int = Field(
+        default=8000, ge=0,
+        description="The self-consistency test runs only on depth maps of at least this many pixels: on coarser ones "
+        "its standard errors are too small to gate on (64x48 maps: a depth error flagged in 4 of 20 clean recordings, "
+        "at up to 6.5 standard errors; 128x96: none of 20). Phone depth maps are 256x192 or larger.",
+    )
     min_depth_error_m: float = Field(
         default=0.005, ge=0,
         description="The self-consistency test enables depth_scale_offset when the depth error at the recording's median "

@@ -89,6 +89,7 @@ config_map(
         "min_tracks_count": "the stage leaves joints with fewer tracks undiagnosed",
         "self_consistency": "whether the stage also tests the static recording against itself",
         "min_depth_error_m": "the self-consistency test's gate on the depth error, applied by the stage",
+        "self_consistency_min_depth_pixels": "the stage skips the self-consistency test on coarser depth maps",
     },
 )
 
@@ -446,8 +447,15 @@ def self_consistency(capture: CaptureArtifact, config: DiagnoseConfig) -> tuple[
     depth is at least ``min_depth_error_m`` and 3 standard errors, with a standard error of at
     most 1 cm (the depth_calibration stage's own limit). A finding is significant when it is
     enabled (the gate is its significance test). A recording whose effects are already modelled
-    (the corrected capture) finds neither.
+    (the corrected capture) finds neither. Depth maps of fewer than
+    ``config.self_consistency_min_depth_pixels`` pixels are not tested (a note says so).
     """
+    _, dh, dw = capture.depth.shape
+    if dh * dw < config.self_consistency_min_depth_pixels:
+        return [], [
+            f"{STATIC_SCOPE}: its self-consistency (pose drift, depth error) was not tested: its depth maps are {dw}x{dh}, "
+            f"fewer than {config.self_consistency_min_depth_pixels} pixels, on which the test cannot be trusted."
+        ]
     cap = to_core(Capture, capture)
     gate = core_kwargs(DriftSignificance.why_not, PoseDriftConfig())
     try:

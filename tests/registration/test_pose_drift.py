@@ -250,3 +250,17 @@ def test_the_diagnosis_finds_a_drift_and_a_depth_error_from_the_recording_itself
     on, found = enabled(clean)
     assert on == [] and not any(f.significant for f in found.values())
     assert self_consistency_metrics(list(found.values()))[err] < 0.2 * biased[err]
+
+
+def test_the_self_consistency_test_is_not_run_on_coarse_depth():
+    """On 64x48 depth maps the test's standard errors are too small to gate on (it flagged 4 of 20
+    clean tiny recordings): it says it did not run rather than advise a depth correction."""
+    from schemas._diagnose import DiagnoseConfig
+    from tasks.diagnose import self_consistency
+
+    coarse = to_artifact(CaptureArtifact, generate_scene(BENCHMARK_SCENES["tiny"]).static)
+    assert coarse.depth.shape[1] * coarse.depth.shape[2] < DiagnoseConfig().self_consistency_min_depth_pixels
+    findings, lines = self_consistency(coarse, DiagnoseConfig())
+    assert findings == [] and len(lines) == 1 and "was not tested" in lines[0] and "64x48" in lines[0]
+    findings, _ = self_consistency(coarse, DiagnoseConfig(self_consistency_min_depth_pixels=0))
+    assert {f.name for f in findings} == {"pose_drift", "depth_scale_offset"}
