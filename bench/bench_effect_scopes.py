@@ -41,12 +41,11 @@ from _common import print_table, write_results
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
-from artitwin_core.diagnostics._runs import curve_shift, metric_shift  # noqa: E402
+from artitwin_core.diagnostics._runs import curve_shift, target_shift  # noqa: E402
 from artitwin_core.synth import BENCHMARK_SCENES, generate_scene, write_scene  # noqa: E402
 from flows._pipeline import build_summary, write_summary  # noqa: E402
 from flows._runner import InlineExecutor  # noqa: E402
 from flows._runs import (  # noqa: E402
-    SELF_CONSISTENCY_TARGETS,
     comparison_targets,
     diagnosis_of,
     rank_findings,
@@ -57,6 +56,7 @@ from flows._runs import (  # noqa: E402
 from flows.nightly import select_pipeline  # noqa: E402
 from infra.store import ArtifactStore  # noqa: E402
 from schemas import PipelineConfig  # noqa: E402
+from schemas._diagnose import SELF_CONSISTENCY_METRICS  # noqa: E402
 
 STAGES = ["ingest", "pose_lag", "correct_pose_lag", "depth_calibration", "calibrate_depth", "static_drift",
           "refine_poses", "reconstruct", "reconstruct_report", "register", "part_masks", "session_drift",
@@ -123,9 +123,7 @@ def _compare(a: Path, b: Path) -> tuple[list[dict], list[str]]:
     targets, others = comparison_targets(ra, rb)
     out = []
     for label, curve, entry in targets:
-        shift = curve_shift(ra, rb, curve)
-        if shift is None and (scalar := metric_shift(ra, rb, curve)) is not None:
-            shift = (scalar[0], scalar[1], 0, scalar[2])  # measured once per run: no frames
+        shift = target_shift(ra, rb, curve)
         if shift is not None:
             ma, mb, n, _ = shift
             out.append({"curve": label, "entry": entry, "before": ma, "after": mb, "cut": 1 - mb / ma if ma else math.nan, "frames": n})
@@ -166,7 +164,7 @@ def _named_first(ranked: list, scope: str, effect: str) -> bool:
 def _heldout_cuts(a: Path, b: Path, scopes: list[str], effect_target: str, effect: str) -> dict[str, float]:
     """Per scope, the cut of the diagnosis's held-out error on the effect's target (A's twin
     against B's: ``heldout_<error>_before`` of each run); for a target of the recording's
-    agreement with itself, the cut of that disagreement (``SELF_CONSISTENCY_TARGETS``: no twin is
+    agreement with itself, the cut of that disagreement (``SELF_CONSISTENCY_METRICS``: no twin is
     fitted to it, so there is nothing to hold out)."""
     ra, rb = run_record(a), run_record(b)
     err = HELDOUT_ERROR[effect_target]
@@ -174,8 +172,8 @@ def _heldout_cuts(a: Path, b: Path, scopes: list[str], effect_target: str, effec
     for s in scopes:
         stage = "diagnose_dynamic" if s == "dynamic recording" else "diagnose"
         key = f"{stage}/{s}/heldout_{err}_before"
-        if effect_target == "self-consistency" and effect in SELF_CONSISTENCY_TARGETS:
-            key = f"{stage}/{s}/{SELF_CONSISTENCY_TARGETS[effect]}"
+        if effect_target == "self-consistency" and effect in SELF_CONSISTENCY_METRICS:
+            key = f"{stage}/{s}/{SELF_CONSISTENCY_METRICS[effect]}"
         if key in ra.metrics and key in rb.metrics and ra.metrics[key] > 0:
             out[s] = 1.0 - rb.metrics[key] / ra.metrics[key]
     return out

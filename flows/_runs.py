@@ -12,6 +12,7 @@ from artitwin_core.diagnostics._runs import RunComparison, RunRecord, compare_ru
 from artitwin_core.reconstruction import split_frames
 from infra.store import ArtifactStore
 from schemas import DiagnosisReport, JointSet
+from schemas._diagnose import SELF_CONSISTENCY_METRICS
 
 STATIC_SCOPE = "static recording"
 DYNAMIC_SCOPE = "dynamic recording"
@@ -251,13 +252,6 @@ EFFECT_CURVES = {
     "pose_lag": ("depth", "depth_rms_m"),
     "screw_joint": ("joint tracks", "track_rms_m"),
 }
-# Effects of the static recording whose target is its agreement with itself (a twin trained on the
-# biased depth or the drifting poses absorbs them): the metric of the static diagnosis led with
-# instead of a curve, where both runs have it (tasks.diagnose.self_consistency_metrics).
-SELF_CONSISTENCY_TARGETS = {
-    "depth_scale_offset": "self_consistency_depth_error_m",
-    "pose_drift": "self_consistency_drift_m",
-}
 
 
 def _scopes_of(entry: str, curve_scopes: list[str]) -> list[str]:
@@ -284,14 +278,16 @@ def comparison_targets(ra: RunRecord, rb: RunRecord) -> tuple[list[tuple[str, st
     have = {_canonical(e) for e in ra.effects}
     targets = []
     for entry in rb.effects:
-        if _canonical(entry) in have or entry.split(":")[-1].split("=")[0] not in EFFECT_CURVES:
-            continue
         effect = entry.split(":")[-1].split("=")[0]
+        if _canonical(entry) in have or effect not in EFFECT_CURVES:
+            continue
         target, leaf = EFFECT_CURVES[effect]
         for scope in _scopes_of(entry, curve_scopes):
-            own = f"diagnose/{scope}/{SELF_CONSISTENCY_TARGETS.get(effect, '')}"
-            if effect in SELF_CONSISTENCY_TARGETS and own in ra.metrics and own in rb.metrics:
-                targets.append((f"{scope}, agreement with itself ({own.rsplit('/', 1)[-1]})", own, entry))
+            # A depth error or drift the twin absorbed: the recording's disagreement with itself,
+            # where the diagnosis of both runs measured it (the static recording's).
+            own = f"diagnose/{scope}/{SELF_CONSISTENCY_METRICS[effect]}" if effect in SELF_CONSISTENCY_METRICS else None
+            if own in ra.metrics and own in rb.metrics:
+                targets.append((f"{scope}, agreement with itself ({SELF_CONSISTENCY_METRICS[effect]})", own, entry))
             else:
                 targets.append((f"{scope}, {target} ({leaf})", f"diagnose/{scope}/{leaf}", entry))
     others = [(f"{c.split('/')[1]}, {c.split('/')[-1]}", c) for c in curves if c.count("/") >= 2]

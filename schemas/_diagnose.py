@@ -151,6 +151,15 @@ class EffectFinding(Artifact):
     )
 
 
+# The static diagnosis's metrics of the recording's disagreement with itself (under "static
+# recording/", each with a standard error "..._se"), by the effect whose model removes it: a twin
+# trained on biased depth or drifting poses absorbs those, so ``artitwin compare`` leads with these.
+SELF_CONSISTENCY_METRICS = {
+    "depth_scale_offset": "self_consistency_depth_error_m",
+    "pose_drift": "self_consistency_drift_m",
+}
+
+
 class DiagnosisReport(Artifact):
     """Where the twin fails against the measurement and which physical effects it is missing."""
 

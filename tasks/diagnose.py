@@ -54,6 +54,7 @@ from schemas import (
     TrajectoriesArtifact,
 )
 from schemas._diagnose import (
+    SELF_CONSISTENCY_METRICS,
     DiagnoseConfig,
     DiagnosisReport,
     EffectFinding,
@@ -617,13 +618,14 @@ def self_consistency_metrics(findings: list[EffectFinding]) -> dict[str, float]:
     for f in findings:
         p = f.params
         if f.name == "depth_scale_offset" and "error_m" in p:
-            out[f"{STATIC_SCOPE}/self_consistency_depth_error_m"] = abs(float(p["error_m"]))
-            out[f"{STATIC_SCOPE}/self_consistency_depth_error_m_se"] = float(p["error_se_m"])
+            value, se = abs(float(p["error_m"])), float(p["error_se_m"])
         elif f.name == "pose_drift" and "displacement_m" in p:
-            size = float(np.linalg.norm(p["displacement_m"]))
-            z = p.get("z_score")
-            out[f"{STATIC_SCOPE}/self_consistency_drift_m"] = size
-            out[f"{STATIC_SCOPE}/self_consistency_drift_m_se"] = size / float(z) if z else float("nan")
+            value = float(np.linalg.norm(p["displacement_m"]))
+            se = value / float(p["z_score"]) if p.get("z_score") else float("nan")
+        else:
+            continue
+        name = f"{STATIC_SCOPE}/{SELF_CONSISTENCY_METRICS[f.name]}"
+        out[name], out[name + "_se"] = value, se
     return out
 
 

@@ -144,8 +144,18 @@ def metric_shift(a: RunRecord, b: RunRecord, name: str) -> tuple[float, float, b
     va, vb = float(a.metrics[name]), float(b.metrics[name])
     if not (np.isfinite(va) and np.isfinite(vb)):
         return None
-    se = float(np.hypot(*(np.nan_to_num(float(r.metrics.get(name + "_se", 0.0))) for r in (a, b))))
+    sa, sb = (np.nan_to_num(float(r.metrics.get(name + "_se", 0.0))) for r in (a, b))
+    se = float(np.hypot(sa, sb))
     return va, vb, bool(abs(vb - va) > max(NOISE_SE * se, NOISE_REL * abs(va)))
+
+
+def target_shift(a: RunRecord, b: RunRecord, name: str) -> tuple[float, float, int, bool] | None:
+    """``(A, B, frames, beyond noise)`` of a comparison target: a curve over its held-out frames
+    (``curve_shift``), or a metric measured once per run (``metric_shift``; 0 frames)."""
+    shift = curve_shift(a, b, name)
+    if shift is None and (scalar := metric_shift(a, b, name)) is not None:
+        return scalar[0], scalar[1], 0, scalar[2]
+    return shift
 
 
 def _verdict(ma: float, mb: float, beyond: bool) -> str:
@@ -155,17 +165,14 @@ def _verdict(ma: float, mb: float, beyond: bool) -> str:
 def _lead(a: RunRecord, b: RunRecord, targets, others) -> tuple[list[str], list[str]]:
     lead, regressions = [], []
     for label, name, effect in targets:
-        shift = curve_shift(a, b, name)
-        scalar = metric_shift(a, b, name) if shift is None else None
-        if scalar is not None:
-            va, vb, beyond = scalar
-            lead.append(f"{label}: {va:.3g} -> {vb:.3g}, {_pct(va, vb)} ({effect}: {_verdict(va, vb, beyond)}).")
-            continue
+        shift = target_shift(a, b, name)
         if shift is None:
             lead.append(f"{label}: not measured in both runs ({name}); the effect {effect} cannot be judged.")
             continue
         ma, mb, n, beyond = shift
-        lead.append(f"{label}, held-out: {ma:.3g} -> {mb:.3g}, {_pct(ma, mb)} over {n} frames ({effect}: {_verdict(ma, mb, beyond)}).")
+        values = f"{ma:.3g} -> {mb:.3g}, {_pct(ma, mb)}"
+        text = f"{label}, held-out: {values} over {n} frames" if n else f"{label}: {values}"
+        lead.append(f"{text} ({effect}: {_verdict(ma, mb, beyond)}).")
     targeted = {name for _, name, _ in targets}
     for label, name in others:
         if name in targeted:
