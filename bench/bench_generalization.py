@@ -461,6 +461,8 @@ def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--scenes", type=int, default=30, help="random scenes to run (default 30)")
     parser.add_argument("--start-seed", type=int, default=0, help="seed of the first scene")
+    parser.add_argument("--seeds", type=int, nargs="+", default=None, metavar="SEED",
+                        help="run exactly these seeds instead of --scenes from --start-seed")
     parser.add_argument("--jobs", type=int, default=1, help="scenes run in parallel processes")
     parser.add_argument("--keep", type=Path, default=None, help="keep each scene, store and run under this folder")
     parser.add_argument("--timeout", type=float, default=3600.0, help="seconds before a scene's run is a crash")
@@ -489,6 +491,8 @@ def main() -> None:
         if unknown:
             parser.error(f"unknown scene(s) {unknown}; BENCHMARK_SCENES holds {sorted(BENCHMARK_SCENES)}")
         seeds = list(args.named or BENCHMARK_SCENES)
+    elif args.seeds is not None:
+        seeds = list(dict.fromkeys(args.seeds))
     else:
         seeds = list(range(args.start_seed, args.start_seed + args.scenes))
     t0 = time.perf_counter()
@@ -500,6 +504,7 @@ def main() -> None:
 
         shutil.rmtree(root, ignore_errors=True)
     which = (f"{len(seeds)} benchmark scenes" if args.named is not None
+             else f"{len(seeds)} random scenes (seeds {', '.join(map(str, seeds))})" if args.seeds is not None
              else f"{len(seeds)} random scenes (seeds {seeds[0]}-{seeds[-1]})")
     print(f"\nGeneralization: {which}, quick preset, "
           f"{args.jobs} job(s), {wall:.0f} s")
@@ -513,7 +518,9 @@ def main() -> None:
     crashes = [r for r in results if r["status"] != "ok"]
     for r in crashes:
         print(f"\ncrash, {r['seed']} ({r.get('draw', '')}):\n  {r.get('error', '')}")
-    path = write_results("generalization_named" if args.named is not None else "generalization", results, {"totals": t, "targets": TARGETS, "match_ratio": MATCH_RATIO,
+    name = ("generalization_named" if args.named is not None
+            else "generalization_seeds" if args.seeds is not None else "generalization")
+    path = write_results(name, results, {"totals": t, "targets": TARGETS, "match_ratio": MATCH_RATIO,
                                                      "jobs": args.jobs, "wall_s": wall, "seeds": seeds,
                                                      "preset": "quick"})
     print(f"\nwrote {path}")
