@@ -56,7 +56,7 @@ config_map(PartStageConfig, {PartConfig: " ".join(PartStageConfig.model_fields)}
 config_map(ChangeStageConfig, {ChangeConfig: " ".join(ChangeStageConfig.model_fields)})
 
 
-@stage(name="register", version=8, config=RegistrationStageConfig, output=Registration)
+@stage(name="register", version=9, config=RegistrationStageConfig, output=Registration)
 def register_dynamic(static: CaptureArtifact, dynamic: CaptureArtifact, config: RegistrationStageConfig) -> Registration:
     """``canonical_from_session`` of the dynamic recording: hypotheses from the poses and a yaw sweep
     about gravity, scored against what the static recording saw, gravity-keeping ICP, a photometric
