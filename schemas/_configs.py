@@ -302,12 +302,13 @@ class SettlePartsConfig(StageConfig):
 
 
 class JointStateConfig(StageConfig):
-    """Refining each rotational joint's per-frame state from depth (see artitwin_core.joints.refine_joint_states)."""
+    """Refining each joint's per-frame state from depth (see artitwin_core.joints.refine_joint_states)."""
 
     refine_from_depth: bool = Field(
         default=True,
-        description="Refit q(t) of revolute and screw joints against the part's depth inside its mask: the point "
-        "tracks end when a door's front face turns away, and q would be held from there.",
+        description="Refit q(t) of revolute, screw and prismatic joints against the part's depth inside its mask: "
+        "the point tracks end when a door's front face turns away or a hand covers a drawer front, and q would be "
+        "held from there.",
     )
     max_points: int = Field(default=1500, ge=100, description="Part points lifted per frame.")
     refine_line: bool = Field(

@@ -103,7 +103,7 @@ def candidate_index(masks: MaskSequenceArtifact, label: int) -> int:
     return int(masks.candidates[label - 1]) if masks.candidates is not None else label - 1
 
 
-@stage(name="joint_states", version=9, config=JointStateConfig, output=JointSet)
+@stage(name="joint_states", version=10, config=JointStateConfig, output=JointSet)
 def refine_states(
     joints: JointSet,
     dynamic: CaptureArtifact,
@@ -111,7 +111,7 @@ def refine_states(
     registration: Registration,
     config: JointStateConfig,
 ) -> JointSet:
-    """Each rotational joint's ``q(t)`` refitted against its part's depth, and a door's line fitted
+    """Each joint's ``q(t)`` refitted against its part's depth (a drawer's too), and a door's line fitted
     to its face planes (``config.refine_line``).
 
     ``joints`` and ``masks`` are the settled ones (``settle_parts``, ``final_masks``): joint ``k``
