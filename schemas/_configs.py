@@ -316,6 +316,18 @@ class JointStateConfig(StageConfig):
         description="Also fit a revolute slab's (a door's) axis and pivot to the planes its faces show in depth, "
         "where that fit's standard errors are small: tracks on a weakly textured door leave its pivot ~1 cm off.",
     )
+    second_opinion: bool = Field(
+        default=True,
+        description="Where the joint fitted to a part's tracks is unsure (standard errors over the two limits below), "
+        "try the part finder's joint, fitted to the change in depth, and keep whichever explains the part's depth "
+        "better (artitwin_core.parts.prefer_depth_joint): tracks on a weakly textured door drift.",
+    )
+    unsure_axis_se_deg: float = Field(
+        default=2.0, gt=0, description="A tracks' joint whose axis standard error exceeds this is unsure (degrees)."
+    )
+    unsure_pivot_se_m: float = Field(
+        default=0.03, gt=0, description="A tracks' rotational joint whose line's standard error exceeds this is unsure (m)."
+    )
     rgb_time_offset_s: float = Field(
         default=0.0,
         ge=-0.5,
