@@ -135,6 +135,12 @@ class Artifact(BaseModel):
     @classmethod
     def nested_fields(cls) -> dict[str, tuple[type[Artifact], bool]]:
         """Fields holding nested artifacts: name -> (class, is_list)."""
+        if not cls.__pydantic_complete__:
+            # A field typed with a class defined further down its module is a forward reference
+            # until pydantic rebuilds the model, which it does on the first validation only: a
+            # fresh process reading before writing would take the nested list for a plain field,
+            # find it missing from the stored fields, and read it as its default (empty).
+            cls.model_rebuild()
         out = {}
         for name, info in cls.model_fields.items():
             ann = info.annotation

@@ -2,6 +2,11 @@
 
 from __future__ import annotations
 
+import json
+import subprocess
+import sys
+from pathlib import Path
+
 import numpy as np
 import pytest
 import zarr
@@ -50,6 +55,36 @@ def test_store_round_trip_is_exact(cls, tmp_path):
     store = ArtifactStore(tmp_path)
     assert store.put("k" * 64, art)
     assert store.get("k" * 64, cls).equals(art)
+
+
+_READ_IN_FRESH_PROCESS = """
+import json, sys
+from infra.store import ArtifactStore
+store = ArtifactStore(sys.argv[1])
+out = {}
+for kind, key in json.loads(sys.argv[2]).items():
+    art = store.get(key)
+    out[kind] = {n: len(v) for n, v in dict(art).items() if isinstance(v, list)}
+print(json.dumps(out))
+"""
+
+
+def test_a_fresh_process_reads_nested_lists_back(tmp_path):
+    """A process that has built no artifact yet reads every nested list back whole. A list typed
+    with a class defined further down its module (MaskSequenceArtifact.depth_joints) stayed a
+    forward reference there until the first validation, and was read back empty: a rerun from the
+    store lost the part finder's joints."""
+    store = ArtifactStore(tmp_path)
+    keys, expected = {}, {}
+    for i, cls in enumerate(ALL):
+        art = make_artifact(cls, np.random.default_rng(2))
+        keys[cls.kind] = f"{i:064d}"
+        assert store.put(keys[cls.kind], art)
+        expected[cls.kind] = {n: len(v) for n, v in dict(art).items() if isinstance(v, list)}
+    run = subprocess.run([sys.executable, "-c", _READ_IN_FRESH_PROCESS, str(tmp_path), json.dumps(keys)],
+                         capture_output=True, text=True, check=True, cwd=Path(__file__).parents[2])
+    assert json.loads(run.stdout) == expected
+    assert expected["mask_sequence"]["depth_joints"] == 2
 
 
 def test_frame_arrays_are_chunked_one_frame_per_chunk():
