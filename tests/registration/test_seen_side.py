@@ -101,14 +101,14 @@ def test_texture_search_slides_to_where_the_texture_agrees(small_scene):
 @pytest.mark.parametrize(
     ("seed", "why"),
     [
-        (11, "a box room's walls fit the placement turned 180 deg at 87 % of the support; seen from behind"),
         (12, "a static close-up: 24 % of the dynamic points where the static recording looked, texture agreeing"),
         (26, "a close-up of a drawer front: turned 180 deg behind it, then 8 cm along it"),
     ],
 )
 def test_generalization_scenes_register(seed, why):
-    """Three generalization scenes (issue 24) that were refused or registered wrong. Measured at the
-    true pivot: 1.2, 1.5 and 1.2 mm; rotation 0.002, 0.05 and 0.003 deg."""
+    """Two generalization scenes (issue 24) that were refused or registered wrong (seed 11, a box
+    room whose turned placement the seen side now rules out, takes 10 s more and is left to the
+    benchmark). Measured at the true pivot: 1.5 and 1.2 mm; rotation 0.05 and 0.003 deg."""
     s = generate_scene(random_scene_spec(seed))
     truth = s.truth.canonical_from_dynamic_session
     r = register_recordings(s.static, s.dynamic, config=RegistrationConfig(uncertainty_blocks=0))
@@ -117,4 +117,4 @@ def test_generalization_scenes_register(seed, why):
     pivots = np.array([j.pivot for j in s.truth.joints])
     assert rot < 0.5, why
     assert np.linalg.norm(pivots @ error[:3, :3].T + error[:3, 3] - pivots, axis=1).max() < 0.01, why
-    assert r.diagnostics["final"]["colour_agreement"] > 0.5  # measured 0.81, 0.84, 0.72
+    assert r.diagnostics["final"]["colour_agreement"] > 0.5  # measured 0.84, 0.72
