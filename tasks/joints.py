@@ -109,16 +109,14 @@ def _second_opinion(
     """``joint`` (the tracks', states refined) or, where it is unsure and the part finder's
     ``depth`` joint explains the part's depth better, that one with its states refined too; a
     note saying which and why (empty where the tracks' joint is sure), and whether it changed."""
-    if not uncertain_joint(joint, max_axis_se_rad=np.radians(config.unsure_axis_se_deg),
-                           max_pivot_se_m=config.unsure_pivot_se_m):
+    unsure = {"max_axis_se_rad": float(np.radians(config.unsure_axis_se_deg)), "max_pivot_se_m": config.unsure_pivot_se_m}
+    if not uncertain_joint(joint, **unsure):  # before refining the alternative, which costs seconds
         return joint, "", False
     c_from_s = registration.canonical_from_session
     try:
         alternative = refine_joint_states(to_core(Joint, depth), capture, masks, label, c_from_s,
                                           to_core_config(StateRefineConfig, config))
-        use, why = prefer_depth_joint(joint, alternative, capture, masks, label, c_from_s,
-                                      max_axis_se_rad=np.radians(config.unsure_axis_se_deg),
-                                      max_pivot_se_m=config.unsure_pivot_se_m)
+        use, why = prefer_depth_joint(joint, alternative, capture, masks, label, c_from_s, **unsure)
     except Exception as e:  # noqa: BLE001 (the tracks' joint stands; the note says why)
         return joint, f"the part finder's joint could not be compared ({type(e).__name__}: {e})", False
     return (alternative if use else joint), why, use

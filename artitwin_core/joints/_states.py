@@ -124,15 +124,16 @@ def _frame_cost(
         near &= np.abs(np.einsum("qni,qni->qn", normals, nrm)) >= np.cos(np.radians(cfg.normal_gate_deg))
     r = np.einsum("qni,qni->qn", closed - model.points[idx], nrm)
     same = np.einsum("qni,qni->qn", cam[:, None, :] - closed, nrm) > 0
-    dev = np.zeros((q_count, n))
-    for group in (same, ~same) if free_offset else ():
-        sel = near & group
-        rows = sel.any(1)
-        off = np.zeros(q_count)
-        if rows.any():
-            off[rows] = np.nanmedian(np.where(sel[rows], r[rows], np.nan), axis=1)
-        dev = np.where(sel, r - off[:, None], dev)
-    if not free_offset:
+    if free_offset:
+        dev = np.zeros((q_count, n))
+        for group in (same, ~same):
+            sel = near & group
+            rows = sel.any(1)
+            off = np.zeros(q_count)
+            if rows.any():
+                off[rows] = np.nanmedian(np.where(sel[rows], r[rows], np.nan), axis=1)
+            dev = np.where(sel, r - off[:, None], dev)
+    else:
         dev = np.where(near, r, 0.0)
     z2 = np.where(near, np.minimum((dev / cfg.robust_scale_m) ** 2, 1.0), 1.0)
     inl = near & (z2 < 1.0)

@@ -8,7 +8,7 @@ should replace an unsure joint fitted to the tracks.
 """
 
 from artitwin_core.parts._config import SettleConfig
-from artitwin_core.parts._second import depth_misfit, prefer_depth_joint, uncertain_joint
+from artitwin_core.parts._second import depth_misfits, prefer_depth_joint, uncertain_joint
 from artitwin_core.parts._settle import PartDecision, relabel, settle_parts
 from artitwin_core.parts._types import FATES, Fate, PartFate
 
@@ -18,7 +18,7 @@ __all__ = [
     "PartDecision",
     "PartFate",
     "SettleConfig",
-    "depth_misfit",
+    "depth_misfits",
     "prefer_depth_joint",
     "relabel",
     "settle_parts",

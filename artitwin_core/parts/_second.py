@@ -13,6 +13,8 @@ once both joints' states are refitted to it.
 
 from __future__ import annotations
 
+from collections.abc import Sequence
+
 import numpy as np
 
 from artitwin_core.capture import Capture
@@ -29,17 +31,17 @@ def uncertain_joint(joint: Joint, *, max_axis_se_rad: float, max_pivot_se_m: flo
     return bool(axis or line)
 
 
-def depth_misfit(
-    dynamic: Capture, masks: MaskSequence, label: int, joint: Joint, canonical_from_session: np.ndarray,
+def depth_misfits(
+    dynamic: Capture, masks: MaskSequence, label: int, joints: Sequence[Joint], canonical_from_session: np.ndarray,
     config: SettleConfig | None = None,
-) -> float | None:
-    """How far (metres, a median) the points of part ``label`` in the frames ``joint`` moves them,
-    moved back to the closed state by it, lie from those it leaves closed (``settle_parts``'
-    confirmation test); None where no frame moves the part enough to tell."""
+) -> list[float | None]:
+    """Per joint of ``joints``: how far (metres, a median) the points of part ``label`` in the
+    frames the joint moves them, moved back to the closed state by it, lie from those it leaves
+    closed (``settle_parts``' confirmation test); None where no frame moves the part enough to
+    tell. The part's depth is lifted once for all of them."""
     cfg = config or SettleConfig()
-    c = _lift_candidate(dynamic, masks, label, label - 1, joint, 0, np.asarray(canonical_from_session, np.float64), cfg)
-    fit = _misfits(c, joint, cfg)
-    return None if fit is None else fit[0]
+    c = _lift_candidate(dynamic, masks, label, label - 1, None, 0, np.asarray(canonical_from_session, np.float64), cfg)
+    return [None if (fit := _misfits(c, joint, cfg)) is None else fit[0] for joint in joints]
 
 
 def prefer_depth_joint(
@@ -52,7 +54,7 @@ def prefer_depth_joint(
 
     Yes when the tracks' joint is unsure (:func:`uncertain_joint`), the two are of one type, and
     ``depth`` moves the part's points back onto its closed surface at most ``max_misfit_ratio``
-    as far from it as ``tracks`` does (:func:`depth_misfit`)."""
+    as far from it as ``tracks`` does (:func:`depth_misfits`)."""
     if not uncertain_joint(tracks, max_axis_se_rad=max_axis_se_rad, max_pivot_se_m=max_pivot_se_m):
         return False, ""
     if depth.joint_type != tracks.joint_type:
@@ -60,8 +62,7 @@ def prefer_depth_joint(
                        "joint: kept the tracks'")
     se = f"axis +-{np.degrees(tracks.axis_se_rad or 0.0):.1f} deg" + (
         f", line +-{1e3 * tracks.pivot_se_m:.0f} mm" if tracks.pivot_se_m is not None else "")
-    m_t = depth_misfit(dynamic, masks, label, tracks, canonical_from_session, config)
-    m_d = depth_misfit(dynamic, masks, label, depth, canonical_from_session, config)
+    m_t, m_d = depth_misfits(dynamic, masks, label, (tracks, depth), canonical_from_session, config)
     told = "not measured" if m_t is None else f"{1e3 * m_t:.0f} mm"
     if m_d is None or (m_t is not None and m_d > max_misfit_ratio * m_t):
         return False, (f"the tracks leave the joint unsure ({se}); the part finder's depth fit explains the part's depth "
