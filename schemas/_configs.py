@@ -299,6 +299,15 @@ class SettlePartsConfig(StageConfig):
     )
     same_state_floor: float = Field(default=0.02, ge=0, description="... or within this (radians or metres).")
     adjacency_px: int = Field(default=4, ge=0, description="Candidates whose masks, grown by this many pixels, overlap in a frame are neighbours.")
+    stand_in_rest_frac: float = Field(
+        default=0.04, ge=0, le=0.5,
+        description="A door kept on the part finder's joint (its tracks gave none, or a fixed one) must have its line confirmed "
+        "by its face planes; its closed frames are those within this fraction of its range of 0...",
+    )
+    stand_in_max_shift_m: float = Field(
+        default=1.0, gt=0, description="... and the planes may move the part finder's line this far (metres)..."
+    )
+    stand_in_max_turn_deg: float = Field(default=30.0, gt=0, description="... and turn it this much (degrees).")
 
 
 class JointStateConfig(StageConfig):

@@ -127,7 +127,7 @@ def candidate_index(masks: MaskSequenceArtifact, label: int) -> int:
     return int(masks.candidates[label - 1]) if masks.candidates is not None else label - 1
 
 
-@stage(name="joint_states", version=11, config=JointStateConfig, output=JointSet)
+@stage(name="joint_states", version=12, config=JointStateConfig, output=JointSet)
 def refine_states(
     joints: JointSet,
     dynamic: CaptureArtifact,
@@ -190,7 +190,8 @@ def refine_states(
                 joint, note, swapped = _second_opinion(joint, masks.depth_joints[k], capture, seq, k + 1, registration, config)
                 if note:
                     notes.append(f"{params.name}: {note}.")
-                selection.setdefault(params.name, {})["joint_from_depth"] = float(swapped)
+                sel = selection.setdefault(params.name, {})
+                sel["joint_from_depth"] = float(swapped or sel.get("joint_from_depth", 0.0) > 0)  # or settle_parts' stand-in
         out.append(to_artifact(JointParams, finish(joint), name=params.name))
         selection.setdefault(params.name, {})["state_frames_changed"] = float(changed)
     return JointSet(joints=out, selection=selection, notes=notes, **settled, **clock)

@@ -18,6 +18,7 @@ from artitwin_core.masks import MaskSequence
 from artitwin_core.parts import PartFate, SettleConfig, relabel, settle_parts
 from schemas import (
     CaptureArtifact,
+    JointParams,
     JointSet,
     MaskSequenceArtifact,
     PartFateArtifact,
@@ -31,7 +32,7 @@ from tasks._stage import stage
 config_map(SettlePartsConfig, {SettleConfig: " ".join(SettlePartsConfig.model_fields)})  # every field, by its name
 
 
-@stage(name="settle_parts", version=3, config=SettlePartsConfig, output=JointSet)
+@stage(name="settle_parts", version=4, config=SettlePartsConfig, output=JointSet)
 def settle_candidate_parts(
     joints: JointSet,
     trajectories: TrajectoriesArtifact,
@@ -43,22 +44,30 @@ def settle_candidate_parts(
     """The settled parts: one joint per kept candidate, numbered again in the candidates' order
     (``joint_k``; ``mask_labels`` says which candidate label it was, ``label_map`` where every
     candidate label goes), with every candidate's fate (``fates``): the part finder's, the joint
-    fit's and this stage's."""
+    fit's and this stage's. A part whose tracks gave no joint or a fixed one, but whose depth
+    confirms the part finder's joint (``masks.depth_joints``), is kept on that joint
+    (``selection``'s ``joint_from_depth`` is 1 and its fate says why)."""
     labels = joints.mask_labels if joints.mask_labels is not None else list(range(1, len(joints.joints) + 1))
     candidate_joints = {lab: to_core(Joint, j) for lab, j in zip(labels, joints.joints, strict=True)}
     part_ids = trajectories.part_ids if trajectories.part_ids is not None else np.zeros(trajectories.valid.shape[1], np.int32)
     seen = trajectories.valid.any(0)
     tracks = {int(p) + 1: int(np.count_nonzero(seen & (part_ids == p))) for p in np.unique(part_ids)}
     earlier = [to_core(PartFate, f) for f in list(masks.fates) + list(joints.fates)]
+    depth_joints = {lab: to_core(Joint, j) for lab, j in enumerate(masks.depth_joints, start=1)}
     decision = settle_parts(
         to_core(Capture, dynamic), to_core(MaskSequence, masks), registration.canonical_from_session, candidate_joints,
-        candidates=masks.candidates, tracks=tracks, earlier=earlier, config=to_core_config(SettleConfig, config),
+        candidates=masks.candidates, tracks=tracks, earlier=earlier, depth_joints=depth_joints,
+        config=to_core_config(SettleConfig, config),
     )  # fmt: skip
     by_label = dict(zip(labels, joints.joints, strict=True))
     kept, selection = [], {}
     for k, lab in enumerate(decision.kept_labels):
-        old = by_label[lab]
         name = f"joint_{k}"
+        if lab in decision.from_depth:  # the part finder's joint stands in for the tracks'
+            kept.append(to_artifact(JointParams, decision.from_depth[lab], name=name))
+            selection[name] = {"joint_from_depth": 1.0}
+            continue
+        old = by_label[lab]
         kept.append(old.model_copy(update={"name": name}))
         selection[name] = dict(joints.selection.get(old.name, {}))
     return JointSet(

@@ -40,6 +40,13 @@ class SettleConfig:
             part's range (median over frames), or within the floor (radians or metres).
         adjacency_px: two candidates are neighbours when their masks, grown by this many pixels,
             overlap in some frame.
+        stand_in_rest_frac: a door kept on the part finder's joint (its tracks gave none) must
+            have its line confirmed by its face planes (``fit_line_from_planes``); its closed
+            frames are those within this fraction of its range of 0 (that joint's line is a
+            coarse one, and the states it gives closed frames scatter by a few degrees)...
+        stand_in_max_shift_m, stand_in_max_turn_deg: ... and the planes may move its line this far
+            (metres) and turn it this much (degrees): the part finder may have put it on the
+            wrong edge.
     """
 
     min_depth_points: int = 40
@@ -57,3 +64,6 @@ class SettleConfig:
     same_state_frac: float = 0.15
     same_state_floor: float = 0.02
     adjacency_px: int = 4
+    stand_in_rest_frac: float = 0.04
+    stand_in_max_shift_m: float = 1.0
+    stand_in_max_turn_deg: float = 30.0

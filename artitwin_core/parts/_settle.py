@@ -6,7 +6,11 @@ piece of static surface at a depth edge; a region too small or too thin to track
 must end as one of three fates, and never take the run down:
 
 - **kept**: a part with a joint of its own (a fit that moves more than a couple of centimetres or
-  degrees, that its own depth confirms, and depth enough to build its mesh);
+  degrees, that its own depth confirms, and depth enough to build its mesh). Where its tracks
+  show no motion (fitted fixed) or could not be fitted at all, the part finder's joint, fitted
+  to the part's change in depth, stands in for theirs if the depth confirms it: on a weakly
+  textured door the tracks stick to the static edges around it and say "fixed" while the door
+  swings 58 deg (generalization seeds 2, 8 and 13);
 - **merged** into a kept part: it has the same joint and states as that part, or that part's
   motion explains its depth (its points, moved back to a common state by that part's joint,
   agree where held still they do not), whether or not it was fitted a joint of its own: a strip
@@ -23,7 +27,7 @@ export agree on one set of parts.
 from __future__ import annotations
 
 from collections.abc import Sequence
-from dataclasses import dataclass, replace
+from dataclasses import dataclass, field, replace
 
 import cv2
 import numpy as np
@@ -31,7 +35,7 @@ from scipy.spatial import cKDTree
 
 from artitwin_core._errors import InputError
 from artitwin_core.capture import Capture
-from artitwin_core.joints import Joint, joint_transforms
+from artitwin_core.joints import Joint, StateRefineConfig, joint_transforms, refine_joint_states
 from artitwin_core.masks import MaskSequence
 from artitwin_core.parts._config import SettleConfig
 from artitwin_core.parts._types import Fate, PartFate
@@ -47,11 +51,15 @@ class PartDecision:
         kept_labels: the candidate mask label of each final part, in final order (joint ``k``).
         label_map: ``[M + 1]`` int32, the final mask label (``k + 1``, 0 = not a part) of each
             candidate mask label (index 0 is 0).
+        from_depth: kept candidate label -> its joint, where that is the part finder's
+            (``depth_joints``, its states refitted to the part's depth, a door's line to its face
+            planes), not its tracks'.
     """
 
     fates: tuple[PartFate, ...]
     kept_labels: tuple[int, ...]
     label_map: np.ndarray
+    from_depth: dict[int, Joint] = field(default_factory=dict)
 
 
 @dataclass
@@ -63,6 +71,8 @@ class _Candidate:
     frames: list[tuple[int, np.ndarray]]  # (frame, canonical points [N, 3])
     depth_px: int
     depth_frames: int
+    from_depth: str = ""  # the joint is the part finder's: why the tracks' could not serve, and the depth's evidence
+    refused: str = ""  # the part finder's joint was offered and refused: why
 
 
 def settle_parts(
@@ -74,6 +84,7 @@ def settle_parts(
     candidates: np.ndarray | None = None,
     tracks: dict[int, int] | None = None,
     earlier: Sequence[PartFate] = (),
+    depth_joints: dict[int, Joint] | None = None,
     config: SettleConfig | None = None,
 ) -> PartDecision:
     """Decide every candidate part's fate.
@@ -89,6 +100,10 @@ def settle_parts(
             same-joint candidates absorbs the other).
         earlier: fates already decided (the part finder's, for candidates it never labelled; the
             joint fit's, for labels it could not fit): kept in the result, their ``part`` filled.
+        depth_joints: candidate mask label -> the part finder's joint, fitted to the change in
+            depth (canonical frame): it stands in for a candidate whose tracks gave no joint or a
+            fixed one, where the candidate's depth confirms it (``confirm_min_ratio``,
+            ``confirm_min_margin_m``).
         config: thresholds.
 
     Returns:
@@ -113,6 +128,9 @@ def settle_parts(
         lab: _lift_candidate(dynamic, masks, lab, lab - 1 if candidates is None else int(candidates[lab - 1]), joints.get(lab), (tracks or {}).get(lab, 0), c_from_s, cfg)
         for lab in range(1, n_labels + 1)
     }
+    for lab, c in cands.items():
+        if (c.joint is None or c.joint.joint_type == "fixed") and (depth := (depth_joints or {}).get(lab)) is not None:
+            _stand_in(c, depth, earlier_by_label.get(lab), cfg, dynamic, masks, c_from_s)
     decided: dict[int, PartFate] = {}
     kept: list[int] = []
     unconfirmed: dict[int, str] = {}  # a joint that is no motion of its own, and why
@@ -145,7 +163,7 @@ def settle_parts(
     for lab in list(kept):
         c = cands[lab]
         fit = _misfits(c, _joint(c), cfg)
-        if fit is not None and not (fit[1] >= cfg.confirm_min_ratio * fit[0] and fit[1] - fit[0] >= cfg.confirm_min_margin_m):
+        if fit is not None and not _confirms(fit, cfg):
             kept.remove(lab)
             unconfirmed[lab] = (f"its depth does not confirm the {_joint(c).joint_type} joint fitted to its {c.tracks} tracks "
                                 f"({1e3 * fit[0]:.0f} mm from its closed surface moved back by it, {1e3 * fit[1]:.0f} mm held still)")
@@ -169,8 +187,53 @@ def settle_parts(
         if lab in decided or lab in kept:
             continue
         why = unconfirmed.get(lab) or _no_joint_reason(c, earlier_by_label.get(lab))
+        why += f"; {c.refused}" if c.refused else ""
         decided[lab] = _explain_or_drop(c, why, [cands[k] for k in kept if _adjacent(part, k, lab, cfg)], cfg)
     return _resolve(cands, decided, kept, earlier, n_labels)
+
+
+def _stand_in(
+    c: _Candidate, depth: Joint, earlier: PartFate | None, cfg: SettleConfig, dynamic: Capture, masks: MaskSequence,
+    c_from_s: np.ndarray,
+) -> None:
+    """Give ``c`` (no joint from its tracks, or a fixed one) the part finder's joint ``depth``, its
+    states refitted to ``c``'s depth, where that depth confirms it; the tests of
+    :func:`settle_parts` then treat it like any fitted joint. A door's line must be confirmed by
+    its face planes too: its states are free per frame, so a line on the wrong edge of the door
+    can still move its depth back near its closed surface (generalization seed 8)."""
+    if depth.joint_type == "fixed" or c.depth_px < cfg.min_depth_points:
+        return
+    rotates = depth.joint_type in ("revolute", "screw")
+    line = StateRefineConfig(
+        rest_rad=max(StateRefineConfig.rest_rad, cfg.stand_in_rest_frac * _span(depth)),
+        axis_max_shift_m=cfg.stand_in_max_shift_m, axis_max_change_rad=float(np.radians(cfg.stand_in_max_turn_deg)),
+    )  # fmt: skip
+    try:
+        joint = refine_joint_states(depth, dynamic, masks, c.label, c_from_s, line)
+    except Exception as e:  # noqa: BLE001 (no stand-in; the candidate is settled without a joint, saying why)
+        c.refused = f"the part finder's {depth.joint_type} joint could not be refitted to its depth ({type(e).__name__}: {e})"
+        return
+    if rotates and joint.axis_se_rad is None:
+        c.refused = (f"the part finder's {depth.joint_type} joint was not taken: its face planes do not confirm its line "
+                     "(too few turned frames showing one plane, or none closed)")
+        return
+    fit = _misfits(c, joint, cfg)
+    if fit is None or not _confirms(fit, cfg):
+        told = "no frame moves it enough to tell" if fit is None else (
+            f"{1e3 * fit[0]:.0f} mm from its closed surface moved back by it, {1e3 * fit[1]:.0f} mm held still")
+        c.refused = f"the part finder's {depth.joint_type} joint was not taken: its depth does not confirm it ({told})"
+        return
+    why = _no_joint_reason(c, earlier)
+    c.joint = joint
+    c.from_depth = (f"{why}; the part finder's {depth.joint_type} joint, fitted to its change in depth, stands in"
+                    f"{' (its line refitted to its face planes)' if rotates else ''}: its depth confirms it "
+                    f"({1e3 * fit[0]:.0f} mm from its closed surface moved back by it, {1e3 * fit[1]:.0f} mm held still)")
+
+
+def _confirms(fit: tuple[float, float], cfg: SettleConfig) -> bool:
+    """Whether a joint's own misfits ``(moved back, held still)`` (:func:`_misfits`) confirm it."""
+    moving, still = fit
+    return still >= cfg.confirm_min_ratio * moving and still - moving >= cfg.confirm_min_margin_m
 
 
 def relabel(part: np.ndarray, label_map: np.ndarray) -> np.ndarray:
@@ -345,8 +408,8 @@ def _resolve(
             return None
         return final(label_of_index[f.into], seen + 1)
 
-    fates = [PartFate(candidate=cands[lab].index, fate="kept", stage="settle_parts", part=k, label=lab)
-             for k, lab in enumerate(kept)]
+    fates = [PartFate(candidate=cands[lab].index, fate="kept", stage="settle_parts", part=k, label=lab,
+                      reason=cands[lab].from_depth) for k, lab in enumerate(kept)]
     fates += [replace(f, part=final(lab)) for lab, f in decided.items()]
     for f in earlier:
         if f.label:
@@ -357,4 +420,5 @@ def _resolve(
     for lab in range(1, n_labels + 1):
         k = final(lab)
         label_map[lab] = 0 if k is None else k + 1
-    return PartDecision(tuple(sorted(fates, key=lambda f: f.candidate)), tuple(kept), label_map)
+    from_depth = {lab: _joint(cands[lab]) for lab in kept if cands[lab].from_depth}
+    return PartDecision(tuple(sorted(fates, key=lambda f: f.candidate)), tuple(kept), label_map, from_depth)

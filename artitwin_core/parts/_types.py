@@ -23,7 +23,8 @@ class PartFate:
         fate: ``"kept"`` (a part with a joint of its own), ``"merged"`` (its pixels belong to the
             part whose motion explains them) or ``"dropped"`` (not a moving part).
         stage: the pipeline stage that decided (``part_masks``, ``fit_joints``, ``settle_parts``).
-        reason: why, in words with the numbers that decided; empty when kept.
+        reason: why, in words with the numbers that decided; empty when kept on its tracks' joint
+            (kept on the part finder's joint: why, with the depth's evidence).
         into: merged: the candidate it joined; else None.
         part: the final part it is (kept) or belongs to (merged); None when dropped or not yet
             settled.
