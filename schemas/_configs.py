@@ -308,6 +308,12 @@ class SettlePartsConfig(StageConfig):
         default=1.0, gt=0, description="... and the planes may move the part finder's line this far (metres)..."
     )
     stand_in_max_turn_deg: float = Field(default=30.0, gt=0, description="... and turn it this much (degrees).")
+    screw_keep_ratio: float = Field(
+        default=0.8, gt=0, le=1,
+        description="A kept screw becomes the slide (its travel) or the turn (no pitch) that explains its depth best, unless "
+        "its own misfit is below this fraction of that one's: furniture hardly ever screws, and tracks crossed by a hand "
+        "or a door can carry a turn the part does not make.",
+    )
 
 
 class JointStateConfig(StageConfig):

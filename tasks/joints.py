@@ -70,7 +70,7 @@ def _subset(traj: Trajectories, keep: np.ndarray) -> Trajectories:
     return Trajectories(traj.points_in_world[:, keep], traj.pixels[:, keep], traj.valid[:, keep], traj.query_frame)
 
 
-@stage(name="fit_joints", version=10, config=JointConfig, output=JointSet)
+@stage(name="fit_joints", version=11, config=JointConfig, output=JointSet)
 def fit_joints(trajectories: TrajectoriesArtifact, masks: MaskSequenceArtifact, config: JointConfig) -> JointSet:
     """Fit a joint to each candidate part's tracks; the model-selection scores go in ``selection``.
 
@@ -99,6 +99,8 @@ def fit_joints(trajectories: TrajectoriesArtifact, masks: MaskSequenceArtifact, 
         selection[name]["noise_sigma_m"] = float(fit.noise_sigma_m)
         selection[name]["inlier_tracks_count"] = float(np.count_nonzero(fit.inlier_mask))
         selection[name]["tracks_count"] = float(n_tracks)
+        if config.model_screw or name in config.screw_joints:
+            selection[name]["screw_effect"] = 1.0  # asked for: settle_parts leaves the screw a screw
     return JointSet(joints=joints, selection=selection, mask_labels=fitted, fates=fates)
 
 

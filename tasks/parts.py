@@ -54,9 +54,10 @@ def settle_candidate_parts(
     tracks = {int(p) + 1: int(np.count_nonzero(seen & (part_ids == p))) for p in np.unique(part_ids)}
     earlier = [to_core(PartFate, f) for f in list(masks.fates) + list(joints.fates)]
     depth_joints = {lab: to_core(Joint, j) for lab, j in enumerate(masks.depth_joints, start=1)}
+    asked = {lab for lab, j in zip(labels, joints.joints, strict=True) if joints.selection.get(j.name, {}).get("screw_effect")}
     decision = settle_parts(
         to_core(Capture, dynamic), to_core(MaskSequence, masks), registration.canonical_from_session, candidate_joints,
-        candidates=masks.candidates, tracks=tracks, earlier=earlier, depth_joints=depth_joints,
+        candidates=masks.candidates, tracks=tracks, earlier=earlier, depth_joints=depth_joints, screws_asked=asked,
         config=to_core_config(SettleConfig, config),
     )  # fmt: skip
     by_label = dict(zip(labels, joints.joints, strict=True))
@@ -64,11 +65,12 @@ def settle_candidate_parts(
     for k, lab in enumerate(decision.kept_labels):
         name = f"joint_{k}"
         if lab in decision.from_depth:  # the part finder's joint stands in for the tracks'
-            kept.append(to_artifact(JointParams, decision.from_depth[lab], name=name))
+            kept.append(to_artifact(JointParams, decision.replaced[lab], name=name))
             selection[name] = {"joint_from_depth": 1.0}
             continue
         old = by_label[lab]
-        kept.append(old.model_copy(update={"name": name}))
+        new = to_artifact(JointParams, decision.replaced[lab], name=name) if lab in decision.replaced else None
+        kept.append(new or old.model_copy(update={"name": name}))  # a screw its depth reduced, or the tracks' joint
         selection[name] = dict(joints.selection.get(old.name, {}))
     return JointSet(
         joints=kept,

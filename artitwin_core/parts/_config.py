@@ -47,6 +47,8 @@ class SettleConfig:
         stand_in_max_shift_m, stand_in_max_turn_deg: ... and the planes may move its line this far
             (metres) and turn it this much (degrees): the part finder may have put it on the
             wrong edge.
+        screw_keep_ratio: a kept screw becomes the slide (its travel) or the turn (no pitch) that
+            explains its depth best, unless its own misfit is below this fraction of that one's.
     """
 
     min_depth_points: int = 40
@@ -67,3 +69,4 @@ class SettleConfig:
     stand_in_rest_frac: float = 0.04
     stand_in_max_shift_m: float = 1.0
     stand_in_max_turn_deg: float = 30.0
+    screw_keep_ratio: float = 0.8

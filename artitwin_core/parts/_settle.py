@@ -10,7 +10,9 @@ must end as one of three fates, and never take the run down:
   show no motion (fitted fixed) or could not be fitted at all, the part finder's joint, fitted
   to the part's change in depth, stands in for theirs if the depth confirms it: on a weakly
   textured door the tracks stick to the static edges around it and say "fixed" while the door
-  swings 58 deg (generalization seeds 2, 8 and 13);
+  swings 58 deg (generalization seeds 2, 8 and 13). A screw is kept as the slide or turn its
+  depth explains nearly as well, unless the user asked for the screw: a drawer front turning in
+  its own plane looks the same in depth, and tracks that a hand crosses can carry that turn;
 - **merged** into a kept part: it has the same joint and states as that part, or that part's
   motion explains its depth (its points, moved back to a common state by that part's joint,
   agree where held still they do not), whether or not it was fitted a joint of its own: a strip
@@ -51,15 +53,17 @@ class PartDecision:
         kept_labels: the candidate mask label of each final part, in final order (joint ``k``).
         label_map: ``[M + 1]`` int32, the final mask label (``k + 1``, 0 = not a part) of each
             candidate mask label (index 0 is 0).
-        from_depth: kept candidate label -> its joint, where that is the part finder's
-            (``depth_joints``, its states refitted to the part's depth, a door's line to its face
-            planes), not its tracks'.
+        replaced: kept candidate label -> its joint, where that is not the one given for it:
+            the part finder's (``depth_joints``, its states refitted to the part's depth, a door's
+            line to its face planes), or a screw reduced to the slide or turn its depth prefers.
+        from_depth: the labels of ``replaced`` whose joint is the part finder's.
     """
 
     fates: tuple[PartFate, ...]
     kept_labels: tuple[int, ...]
     label_map: np.ndarray
-    from_depth: dict[int, Joint] = field(default_factory=dict)
+    replaced: dict[int, Joint] = field(default_factory=dict)
+    from_depth: tuple[int, ...] = ()
 
 
 @dataclass
@@ -73,6 +77,7 @@ class _Candidate:
     depth_frames: int
     from_depth: str = ""  # the joint is the part finder's: why the tracks' could not serve, and the depth's evidence
     refused: str = ""  # the part finder's joint was offered and refused: why
+    reduced: str = ""  # a screw replaced by the simpler joint its depth prefers: why
 
 
 def settle_parts(
@@ -85,6 +90,7 @@ def settle_parts(
     tracks: dict[int, int] | None = None,
     earlier: Sequence[PartFate] = (),
     depth_joints: dict[int, Joint] | None = None,
+    screws_asked: Sequence[int] = (),
     config: SettleConfig | None = None,
 ) -> PartDecision:
     """Decide every candidate part's fate.
@@ -104,6 +110,8 @@ def settle_parts(
             depth (canonical frame): it stands in for a candidate whose tracks gave no joint or a
             fixed one, where the candidate's depth confirms it (``confirm_min_ratio``,
             ``confirm_min_margin_m``).
+        screws_asked: candidate mask labels whose screw the user asked for (the effect
+            ``screw_joint``): left a screw even where the depth prefers a slide or a turn.
         config: thresholds.
 
     Returns:
@@ -167,6 +175,8 @@ def settle_parts(
             kept.remove(lab)
             unconfirmed[lab] = (f"its depth does not confirm the {_joint(c).joint_type} joint fitted to its {c.tracks} tracks "
                                 f"({1e3 * fit[0]:.0f} mm from its closed surface moved back by it, {1e3 * fit[1]:.0f} mm held still)")
+        elif fit is not None and _joint(c).joint_type == "screw" and lab not in screws_asked:
+            _reduce_screw(c, fit, cfg)
     # A piece of a bigger part fitted with a joint of its own (a strip along a door's edge): merged
     # when the bigger neighbour's motion explains its depth too. One joint explains both; two would
     # export a spurious link. Smallest first, into a neighbour with more tracks that is still kept.
@@ -228,6 +238,31 @@ def _stand_in(
     c.from_depth = (f"{why}; the part finder's {depth.joint_type} joint, fitted to its change in depth, stands in"
                     f"{' (its line refitted to its face planes)' if rotates else ''}: its depth confirms it "
                     f"({1e3 * fit[0]:.0f} mm from its closed surface moved back by it, {1e3 * fit[1]:.0f} mm held still)")
+
+
+def _reduce_screw(c: _Candidate, fit: tuple[float, float], cfg: SettleConfig) -> None:
+    """Replace ``c``'s screw by its slide (the screw's travel along its axis) or its turn (the
+    screw without pitch) where ``c``'s depth explains that nearly as well (``screw_keep_ratio``).
+    Furniture hardly ever screws; tracks on a drawer that a hand or a door crosses can carry a turn
+    the drawer does not make (generalization seed 3: a drawer fitted a 20 deg screw over 26 cm)."""
+    screw = _joint(c)
+    q = np.asarray(screw.q, np.float64)
+    slide_q = screw.pitch * q
+    options = [
+        replace(screw, joint_type="prismatic", q=slide_q, q_range=np.array([np.nanmin(slide_q), np.nanmax(slide_q)]),
+                pitch=0.0),
+        replace(screw, joint_type="revolute", pitch=0.0),
+    ]  # fmt: skip
+    tests = [(j, m) for j in options if (m := _misfits(c, j, cfg)) is not None and _confirms(m, cfg)]
+    if not tests:
+        return
+    simpler, (moving, still) = min(tests, key=lambda jm: jm[1][0])
+    if fit[0] < cfg.screw_keep_ratio * moving:
+        return
+    c.joint = simpler
+    c.reduced = (f"kept as a {simpler.joint_type} joint: its depth explains that ({1e3 * moving:.0f} mm from its closed "
+                 f"surface moved back by it) about as well as the screw fitted to its {c.tracks} tracks "
+                 f"({1e3 * fit[0]:.0f} mm; a screw is kept only below {cfg.screw_keep_ratio:g} of the simpler joint's)")
 
 
 def _confirms(fit: tuple[float, float], cfg: SettleConfig) -> bool:
@@ -409,7 +444,8 @@ def _resolve(
         return final(label_of_index[f.into], seen + 1)
 
     fates = [PartFate(candidate=cands[lab].index, fate="kept", stage="settle_parts", part=k, label=lab,
-                      reason=cands[lab].from_depth) for k, lab in enumerate(kept)]
+                      reason="; ".join(r for r in (cands[lab].from_depth, cands[lab].reduced) if r))
+             for k, lab in enumerate(kept)]
     fates += [replace(f, part=final(lab)) for lab, f in decided.items()]
     for f in earlier:
         if f.label:
@@ -420,5 +456,6 @@ def _resolve(
     for lab in range(1, n_labels + 1):
         k = final(lab)
         label_map[lab] = 0 if k is None else k + 1
-    from_depth = {lab: _joint(cands[lab]) for lab in kept if cands[lab].from_depth}
-    return PartDecision(tuple(sorted(fates, key=lambda f: f.candidate)), tuple(kept), label_map, from_depth)
+    replaced = {lab: _joint(cands[lab]) for lab in kept if cands[lab].from_depth or cands[lab].reduced}
+    from_depth = tuple(lab for lab in kept if cands[lab].from_depth)
+    return PartDecision(tuple(sorted(fates, key=lambda f: f.candidate)), tuple(kept), label_map, replaced, from_depth)
