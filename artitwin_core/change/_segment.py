@@ -32,7 +32,7 @@ from artitwin_core.change._motion import (
     _reference_support,
     _same_joint,
 )
-from artitwin_core.change._score import _best_state, _scoring_subset, motion_score
+from artitwin_core.change._score import _best_state, _scoring_subset, in_place, motion_score
 from artitwin_core.change._vanish import find_moved_parts
 from artitwin_core.change._views import FrameView, PartModel, frame_views
 from artitwin_core.joints import Joint
@@ -203,10 +203,13 @@ def propagate_masks_backwards(
         r = min(model.reference_frame, n - 1)
         order = list(range(r, -1, -1)) + list(range(r + 1, n))
         current = model.reference_q
+        # A drawer's samples that its reference frame still sees in place are static surface
+        # (a door's stay: on its hinge side they are the door, seen in place at any angle).
+        static = in_place(model, views[r], cfg) if model.joint_type == "prismatic" else None
         for t in order:
             if t == r + 1:
                 current = states[r, k]  # forwards again from the reference state
-            current, scores[t, k] = _best_state(model, views[t], current, cfg, after_reference=t > r)
+            current, scores[t, k] = _best_state(model, views[t], current, cfg, after_reference=t > r, static=static)
             states[t, k] = current
     if cfg.grow_frames > 0:
         models = [_grow_over_frames(model, views, states[:, k], scores[:, k], mesh, cfg)
