@@ -166,16 +166,25 @@ def settle_parts(
         decided[small] = _fate(cands[small], "merged", f"the same joint as candidate {cands[big].index} and moving "
                                f"with it ({cands[small].tracks} tracks against {cands[big].tracks})", into=cands[big])
     # A joint its own depth does not confirm (its points, moved back by it, agree with its closed
-    # surface no better than held still) is no motion of its own: a planar patch "turning" in its
-    # plane, a fit to drifting tracks. It is treated below as a candidate with no joint.
+    # surface no better than held still, or it never moves them far enough to tell) is no motion
+    # of its own: a planar patch "turning" in its plane, a fit to drifting tracks. It is treated
+    # below as a candidate with no joint.
     for lab in list(kept):
         c = cands[lab]
         fit = _misfits(c, _joint(c), cfg)
-        if fit is not None and not _confirms(fit, cfg):
+        if fit is None:
+            # Its motion never carries its points min_discrimination_m beyond where it sits closed
+            # in a frame with depth: nothing confirms it moves (seed 10: a piece of the arm
+            # beside a drawer, fitted an 11 deg turn about its own corner).
+            kept.remove(lab)
+            unconfirmed[lab] = (f"the {_joint(c).joint_type} joint fitted to its {c.tracks} tracks never moves its points "
+                                f"{1e3 * cfg.min_discrimination_m:.0f} mm beyond where they sit closed in a frame with depth, "
+                                "so its depth cannot confirm it")
+        elif not _confirms(fit, cfg):
             kept.remove(lab)
             unconfirmed[lab] = (f"its depth does not confirm the {_joint(c).joint_type} joint fitted to its {c.tracks} tracks "
                                 f"({1e3 * fit[0]:.0f} mm from its closed surface moved back by it, {1e3 * fit[1]:.0f} mm held still)")
-        elif fit is not None and _joint(c).joint_type == "screw" and lab not in screws_asked:
+        elif _joint(c).joint_type == "screw" and lab not in screws_asked:
             _reduce_screw(c, fit, cfg)
     # A piece of a bigger part fitted with a joint of its own (a strip along a door's edge): merged
     # when the bigger neighbour's motion explains its depth too. One joint explains both; two would
