@@ -134,7 +134,12 @@ def _screen(
     fates: list[PartFate] = []
     for i, (pts, onset) in enumerate(candidates, start=first):
         up, frames = _fit_setup(pts, views, gravity, frame, cfg, hidden)
-        model = _fit_ungrown(pts, onset, views, up, frames, cfg, mesh, still_supports=not hidden)
+        # Hidden surface is the part's silhouette at its most open, moved back onto the closed
+        # scene: larger than the part by the perspective (and by what the hand hid beside it).
+        # Its rim, moved out with the part, floats in front of the scene, which it does not
+        # contradict; so no see-through penalty in its fit.
+        fit_cfg = replace(cfg, violation_weight=0.0) if hidden else cfg
+        model = _fit_ungrown(pts, onset, views, up, frames, fit_cfg, mesh, still_supports=not hidden)
         host = _host_part(model, models, views, cfg)
         if host is not None:
             k, why = host
