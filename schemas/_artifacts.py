@@ -293,7 +293,7 @@ class MaskSequenceArtifact(Artifact):
     them to the settled parts (label k + 1 = joint k), and carries every candidate's fate."""
 
     kind = "mask_sequence"
-    schema_version = 2
+    schema_version = 3  # 3: depth_joints
 
     part: Array("uint8", "T H W") = Field(description="Part labels at RGB resolution: 0 = not a moving part, k + 1 = part k, [T, H, W].")
     hand: Array("bool", "T H W") = Field(description="Hand and arm pixels at RGB resolution, [T, H, W].")
@@ -306,6 +306,12 @@ class MaskSequenceArtifact(Artifact):
         default_factory=list,
         description="Candidates that are not (or not only) a label here, and why: those the part finder merged or dropped "
         "before labelling; in the final masks, every candidate.",
+    )
+    depth_joints: list[JointParams] = Field(
+        default_factory=list,
+        description="The part finder's joint of each label (label k + 1 is depth_joints[k]), fitted to the change in "
+        "depth, with its states as the masks were propagated: a second opinion beside the joint fitted to the tracks. "
+        "Empty where not recorded.",
     )
 
 

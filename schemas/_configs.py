@@ -302,18 +302,31 @@ class SettlePartsConfig(StageConfig):
 
 
 class JointStateConfig(StageConfig):
-    """Refining each rotational joint's per-frame state from depth (see artitwin_core.joints.refine_joint_states)."""
+    """Refining each joint's per-frame state from depth (see artitwin_core.joints.refine_joint_states)."""
 
     refine_from_depth: bool = Field(
         default=True,
-        description="Refit q(t) of revolute and screw joints against the part's depth inside its mask: the point "
-        "tracks end when a door's front face turns away, and q would be held from there.",
+        description="Refit q(t) of revolute, screw and prismatic joints against the part's depth inside its mask: "
+        "the point tracks end when a door's front face turns away or a hand covers a drawer front, and q would be "
+        "held from there.",
     )
     max_points: int = Field(default=1500, ge=100, description="Part points lifted per frame.")
     refine_line: bool = Field(
         default=True,
         description="Also fit a revolute slab's (a door's) axis and pivot to the planes its faces show in depth, "
         "where that fit's standard errors are small: tracks on a weakly textured door leave its pivot ~1 cm off.",
+    )
+    second_opinion: bool = Field(
+        default=True,
+        description="Where the joint fitted to a part's tracks is unsure (standard errors over the two limits below), "
+        "try the part finder's joint, fitted to the change in depth, and keep whichever explains the part's depth "
+        "better (artitwin_core.parts.prefer_depth_joint): tracks on a weakly textured door drift.",
+    )
+    unsure_axis_se_deg: float = Field(
+        default=2.0, gt=0, description="A tracks' joint whose axis standard error exceeds this is unsure (degrees)."
+    )
+    unsure_pivot_se_m: float = Field(
+        default=0.03, gt=0, description="A tracks' rotational joint whose line's standard error exceeds this is unsure (m)."
     )
     rgb_time_offset_s: float = Field(
         default=0.0,

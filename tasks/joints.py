@@ -15,6 +15,7 @@ from artitwin_core.joints import (
     with_registration_error,
 )
 from artitwin_core.masks import MaskSequence
+from artitwin_core.parts import prefer_depth_joint, uncertain_joint
 from artitwin_core.tracking import Trajectories
 from schemas import (
     CaptureArtifact,
@@ -48,6 +49,9 @@ config_map(
     stage_only={
         "refine_from_depth": "off: the stage keeps the tracks' states and runs no StateRefineConfig at all",
         "rgb_time_offset_s": "the effect time_offset: the value to_rgb_clock takes (it has no default)",
+        "second_opinion": "off: prefer_depth_joint is not asked",
+        "unsure_axis_se_deg": "prefer_depth_joint's max_axis_se_rad, in degrees",
+        "unsure_pivot_se_m": "prefer_depth_joint's max_pivot_se_m",
     },
 )
 
@@ -98,12 +102,34 @@ def fit_joints(trajectories: TrajectoriesArtifact, masks: MaskSequenceArtifact, 
     return JointSet(joints=joints, selection=selection, mask_labels=fitted, fates=fates)
 
 
+def _second_opinion(
+    joint: Joint, depth: JointParams, capture: Capture, masks: MaskSequence, label: int, registration: Registration,
+    config: JointStateConfig,
+) -> tuple[Joint, str, bool]:
+    """``joint`` (the tracks', states refined) or, where it is unsure and the part finder's
+    ``depth`` joint explains the part's depth better, that one with its states refined too; a
+    note saying which and why (empty where the tracks' joint is sure), and whether it changed."""
+    if not uncertain_joint(joint, max_axis_se_rad=np.radians(config.unsure_axis_se_deg),
+                           max_pivot_se_m=config.unsure_pivot_se_m):
+        return joint, "", False
+    c_from_s = registration.canonical_from_session
+    try:
+        alternative = refine_joint_states(to_core(Joint, depth), capture, masks, label, c_from_s,
+                                          to_core_config(StateRefineConfig, config))
+        use, why = prefer_depth_joint(joint, alternative, capture, masks, label, c_from_s,
+                                      max_axis_se_rad=np.radians(config.unsure_axis_se_deg),
+                                      max_pivot_se_m=config.unsure_pivot_se_m)
+    except Exception as e:  # noqa: BLE001 (the tracks' joint stands; the note says why)
+        return joint, f"the part finder's joint could not be compared ({type(e).__name__}: {e})", False
+    return (alternative if use else joint), why, use
+
+
 def candidate_index(masks: MaskSequenceArtifact, label: int) -> int:
     """The part finder's candidate index of mask ``label``."""
     return int(masks.candidates[label - 1]) if masks.candidates is not None else label - 1
 
 
-@stage(name="joint_states", version=9, config=JointStateConfig, output=JointSet)
+@stage(name="joint_states", version=11, config=JointStateConfig, output=JointSet)
 def refine_states(
     joints: JointSet,
     dynamic: CaptureArtifact,
@@ -111,13 +137,16 @@ def refine_states(
     registration: Registration,
     config: JointStateConfig,
 ) -> JointSet:
-    """Each rotational joint's ``q(t)`` refitted against its part's depth, and a door's line fitted
+    """Each joint's ``q(t)`` refitted against its part's depth (a drawer's too), and a door's line fitted
     to its face planes (``config.refine_line``).
 
     ``joints`` and ``masks`` are the settled ones (``settle_parts``, ``final_masks``): joint ``k``
     moves the part labelled ``k + 1``. ``selection`` gains ``state_frames_changed`` per joint: how
     many frames' ``q`` the depth fit replaced. A joint whose refinement fails keeps its tracks'
-    states, with a note; the others are refined all the same. With ``config.rgb_time_offset_s``
+    states, with a note; the others are refined all the same. Where a joint's own standard errors
+    say the tracks left it unsure, the part finder's joint (``masks.depth_joints``) is refined too
+    and replaces it if it explains the part's depth better (``config.second_opinion``;
+    ``selection``'s ``joint_from_depth`` and a note say so). With ``config.rgb_time_offset_s``
     (the effect ``time_offset``) every joint's states are then moved to its frames' RGB times
     (``to_rgb_clock``).
     """
@@ -159,6 +188,11 @@ def refine_states(
             else:
                 changed = int(np.count_nonzero(np.abs(np.asarray(refined.q) - np.asarray(joint.q)) > 1e-9))
                 joint = refined
+            if config.second_opinion and k < len(masks.depth_joints):
+                joint, note, swapped = _second_opinion(joint, masks.depth_joints[k], capture, seq, k + 1, registration, config)
+                if note:
+                    notes.append(f"{params.name}: {note}.")
+                selection.setdefault(params.name, {})["joint_from_depth"] = float(swapped)
         out.append(to_artifact(JointParams, finish(joint), name=params.name))
         selection.setdefault(params.name, {})["state_frames_changed"] = float(changed)
     return JointSet(joints=out, selection=selection, notes=notes, **settled, **clock)

@@ -70,9 +70,13 @@ def settle_candidate_parts(
     )
 
 
-@stage(name="final_masks", version=1, config=SettlePartsConfig, output=MaskSequenceArtifact)
+@stage(name="final_masks", version=2, config=SettlePartsConfig, output=MaskSequenceArtifact)
 def final_masks(masks: MaskSequenceArtifact, parts: JointSet, config: SettlePartsConfig) -> MaskSequenceArtifact:
     """The masks with the settled parts' labels (``k + 1`` = joint ``k``; merged candidates take
-    their part's label, dropped ones none) and every candidate's fate."""
+    their part's label, dropped ones none), every candidate's fate, and each settled part's
+    depth-fitted joint (``depth_joints[k]`` for joint ``k``, where the part finder recorded them)."""
     part = masks.part if parts.label_map is None else relabel(masks.part, parts.label_map)
-    return MaskSequenceArtifact(part=part, hand=masks.hand, score=masks.score, fates=list(parts.fates))
+    labels = parts.mask_labels if parts.mask_labels is not None else list(range(1, len(parts.joints) + 1))
+    depth = [masks.depth_joints[lab - 1].model_copy(update={"name": f"joint_{k}"}) for k, lab in enumerate(labels)] \
+        if len(masks.depth_joints) >= max(labels, default=0) else []
+    return MaskSequenceArtifact(part=part, hand=masks.hand, score=masks.score, fates=list(parts.fates), depth_joints=depth)

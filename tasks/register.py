@@ -23,6 +23,7 @@ from schemas import (
     CameraPoses,
     CaptureArtifact,
     ChangeStageConfig,
+    JointParams,
     MaskSequenceArtifact,
     PartFateArtifact,
     PartMasksConfig,
@@ -100,8 +101,9 @@ def label_parts(
 ) -> MaskSequenceArtifact:
     """Candidate part masks and hand masks of every dynamic frame against the canonical (static)
     geometry (``candidates``: which of the part finder's candidates each label is; ``fates``: those
-    it merged or dropped, and why); with ``config.sam2_checkpoint``, the part labels propagated
-    backwards from the last frame by SAM2."""
+    it merged or dropped, and why; ``depth_joints``: each label's joint as the part finder fitted
+    it to the depth); with ``config.sam2_checkpoint``, the part labels propagated backwards from
+    the last frame by SAM2."""
     if config.sam2_checkpoint and not Path(config.sam2_checkpoint).is_file():
         # Before the geometric work, not after it.
         raise InputError(
@@ -120,7 +122,8 @@ def label_parts(
         part[np.asarray(masks.hand, bool)] = 0
         masks = MaskSequence(part=part, hand=masks.hand, score=masks.score)
     return to_artifact(
-        MaskSequenceArtifact, masks, candidates=seg.candidates, fates=[to_artifact(PartFateArtifact, f) for f in seg.fates]
+        MaskSequenceArtifact, masks, candidates=seg.candidates, fates=[to_artifact(PartFateArtifact, f) for f in seg.fates],
+        depth_joints=[to_artifact(JointParams, j, name=f"part_{k}") for k, j in enumerate(seg.joints())],
     )
 
 

@@ -35,6 +35,7 @@ from artitwin_core.change._motion import (
 from artitwin_core.change._score import _best_state, _scoring_subset, motion_score
 from artitwin_core.change._vanish import find_moved_parts
 from artitwin_core.change._views import FrameView, PartModel, frame_views
+from artitwin_core.joints import Joint
 from artitwin_core.masks import MaskSequence
 from artitwin_core.parts import PartFate
 
@@ -56,6 +57,19 @@ class PartSegmentation:
     states: np.ndarray
     candidates: np.ndarray | None = None
     fates: tuple[PartFate, ...] = ()
+
+    def joints(self) -> list[Joint]:
+        """Each part's joint as the part finder fitted it to the change in depth (label k + 1 is
+        ``joints()[k]``): its type, axis and pivot, and its state in every frame as the masks
+        were propagated (confidence 0.5: measured, not vouched for; no track residuals). A second
+        opinion beside the joint fitted to the part's tracks."""
+        out = []
+        for k, m in enumerate(self.models):
+            q = np.asarray(self.states[:, k], dtype=np.float64)
+            out.append(Joint(joint_type=m.joint_type, axis=np.asarray(m.axis, np.float64), pivot=np.asarray(m.pivot, np.float64),
+                             q=q, q_range=np.array([q.min(), q.max()]), residual=np.full(len(q), np.nan),
+                             confidence=np.full(len(q), 0.5)))
+        return out
 
 
 def segment_part_at_frame(

@@ -1,4 +1,4 @@
-"""Refining a rotational joint from depth: each frame's state, and a door's hinge line.
+"""Refining a joint from depth: each frame's state (doors and drawers), and a door's hinge line.
 
 Point tracks end when a door's front face turns out of view, and ``estimate_joint`` then holds
 ``q``: the fitted opening saturates short of the true one. The part's pixels still carry depth
@@ -28,9 +28,13 @@ frames that neither measured well (no mask depth, a door mostly out of view) are
 the measured ones by a monotone cubic, keeping their input confidence. Before the first and
 after the last anchor there is nothing to bridge to: there a depth fit with a small standard
 error measures its frame even on few inliers (``tail_max_se_rad``: a door seen edge-on to the
-end of the recording), and the nearest measured value is held otherwise. Prismatic and fixed
-joints are returned unchanged: a drawer front's normal is the joint axis, which the free offset
-would absorb.
+end of the recording), and the nearest measured value is held otherwise.
+
+A prismatic joint's states are fitted the same way without the free offsets: a drawer front's
+normal is the joint axis, so its offset along the normal is the state (the angles of the config
+read as distances at ``prismatic_lever_m``). Tracks on a drawer front pulled at a close-up camera
+from above are lost under the hand for a third of the opening (generalization seed 26: ``q`` held
+near 0 over six frames while the drawer moved 12-30 cm). Fixed joints are returned unchanged.
 
 Then (``refine_axis``) a revolute part that is a slab gets its line from the planes its faces
 show (``fit_line_from_planes``): the tracks on a weakly textured door slide along it and leave
@@ -92,7 +96,8 @@ def _validate(joint: Joint, capture: Capture, masks: MaskSequence, part_label: i
 
 
 def _frame_cost(
-    model: SurfaceModel, closed: np.ndarray, cam: np.ndarray, normals: np.ndarray | None, cfg: StateRefineConfig
+    model: SurfaceModel, closed: np.ndarray, cam: np.ndarray, normals: np.ndarray | None, cfg: StateRefineConfig,
+    free_offset: bool = True,
 ):
     """Truncated point-to-plane cost per hypothesis of ``closed [Q, N, 3]`` seen from ``cam [Q, 3]``.
 
@@ -103,7 +108,8 @@ def _frame_cost(
 
     A frame point whose nearest model point was seen from the same side of the surface (the
     view directions agree with the model normal) and one seen from the other side (a door's
-    inside face against its front face) each get their own free offset along the normal.
+    inside face against its front face) each get their own free offset along the normal
+    (``free_offset``; off for a slide, whose state is that offset).
 
     Returns cost ``[Q]`` (in units of ``robust_scale_m^2``), inlier counts ``[Q]`` and the RMS of
     inlier residuals ``[Q]`` metres.
@@ -119,13 +125,15 @@ def _frame_cost(
     r = np.einsum("qni,qni->qn", closed - model.points[idx], nrm)
     same = np.einsum("qni,qni->qn", cam[:, None, :] - closed, nrm) > 0
     dev = np.zeros((q_count, n))
-    for group in (same, ~same):
+    for group in (same, ~same) if free_offset else ():
         sel = near & group
         rows = sel.any(1)
         off = np.zeros(q_count)
         if rows.any():
             off[rows] = np.nanmedian(np.where(sel[rows], r[rows], np.nan), axis=1)
         dev = np.where(sel, r - off[:, None], dev)
+    if not free_offset:
+        dev = np.where(near, r, 0.0)
     z2 = np.where(near, np.minimum((dev / cfg.robust_scale_m) ** 2, 1.0), 1.0)
     inl = near & (z2 < 1.0)
     cost = z2.sum(1)
@@ -142,6 +150,7 @@ def _fit_frame(
     lo: float,
     hi: float,
     cfg: StateRefineConfig,
+    free_offset: bool = True,
 ):
     """Best ``q`` of one frame (points and normals ``[N, 3]``, camera centre ``[3]``), its standard error,
     inlier fraction and RMS residual."""
@@ -151,7 +160,7 @@ def _fit_frame(
         rot = joint_motion(joint.joint_type, joint.axis, joint.pivot, qs, joint.pitch)[0]
         moved = None if n is None else np.einsum("qji,nj->qni", rot, n)
         return _frame_cost(
-            model, to_closed(joint, p, qs), to_closed(joint, cam[None], qs)[:, 0], moved, cfg
+            model, to_closed(joint, p, qs), to_closed(joint, cam[None], qs)[:, 0], moved, cfg, free_offset
         )
 
     grid = np.arange(lo, hi + 0.5 * cfg.coarse_step_rad, cfg.coarse_step_rad)
@@ -192,7 +201,8 @@ def refine_joint_states(
     canonical_from_session: np.ndarray,
     config: StateRefineConfig | None = None,
 ) -> Joint:
-    """Refit each frame's ``q`` of a rotational joint against the part's depth, and a door's line.
+    """Refit each frame's ``q`` of a rotational or prismatic joint against the part's depth, and a
+    door's line.
 
     Args:
         joint: the fitted joint (``estimate_joint``'s), canonical frame, ``q [T]``.
@@ -205,7 +215,8 @@ def refine_joint_states(
         config: hyperparameters; ``StateRefineConfig()`` when None.
 
     Returns:
-        A ``Joint`` of the same type and pitch. Revolute and screw joints get a refined ``q``,
+        A ``Joint`` of the same type and pitch. Revolute, screw and (with ``prismatic_lever_m``)
+        prismatic joints get a refined ``q``,
         ``q_range`` and ``confidence``; on frames whose ``q`` came from the depth fit,
         ``residual`` is its RMS point-to-surface distance (metres) instead of the tracks'. A
         revolute slab's axis and pivot are those of its face planes where ``refine_axis`` is on
@@ -213,7 +224,7 @@ def refine_joint_states(
         Frames that neither the tracks nor the depth measured confidently get ``q`` bridged
         from those that were, with their input confidence and residual. Confident tracked
         frames without mask depth keep their ``q``.
-        Prismatic and fixed joints come back unchanged.
+        Fixed joints come back unchanged.
 
     Raises:
         InputError: masks that do not match the capture, ``q`` of another length, a label that
@@ -221,10 +232,13 @@ def refine_joint_states(
     """
     cfg = config if config is not None else StateRefineConfig()
     c_from_s = _validate(joint, capture, masks, part_label, canonical_from_session)
-    if joint.joint_type not in ("revolute", "screw"):
+    slide = joint.joint_type == "prismatic" and cfg.prismatic_lever_m is not None
+    if joint.joint_type not in ("revolute", "screw") and not slide:
         return joint
     lifted = [lift_frame(capture, masks, t, part_label, c_from_s, cfg) for t in range(capture.num_frames)]
     cams = (c_from_s @ np.asarray(capture.world_from_camera, dtype=np.float64))[:, :3, 3]
+    if slide:
+        return _refit_states(joint, lifted, cams, _as_lengths(cfg), free_offset=False)
     refined = _refit_states(joint, lifted, cams, cfg)
     if not cfg.refine_axis:
         return refined
@@ -250,8 +264,17 @@ def refine_joint_states(
     return _refit_states(moved, lifted, cams, cfg)
 
 
-def _refit_states(joint: Joint, lifted, cams: np.ndarray, cfg: StateRefineConfig) -> Joint:
-    """One pass of the per-frame ``q`` fit (steps 1-3 of the module docstring) with the joint's line held."""
+def _as_lengths(cfg: StateRefineConfig) -> StateRefineConfig:
+    """``cfg`` with its angles turned into the distances they move a point at ``prismatic_lever_m``."""
+    lever = float(cfg.prismatic_lever_m or 0.0)
+    names = ("coarse_step_rad", "search_below_rad", "search_above_rad", "fine_step_rad", "agree_rad",
+             "q_tolerance_rad", "tail_max_se_rad")
+    return replace(cfg, **{n: lever * getattr(cfg, n) for n in names})
+
+
+def _refit_states(joint: Joint, lifted, cams: np.ndarray, cfg: StateRefineConfig, free_offset: bool = True) -> Joint:
+    """One pass of the per-frame ``q`` fit (steps 1-3 of the module docstring) with the joint's line held
+    (``free_offset``: see :func:`_frame_cost`)."""
     t_count = cams.shape[0]
     q_in = np.asarray(joint.q, dtype=np.float64)
     conf_in = np.nan_to_num(np.asarray(joint.confidence, dtype=np.float64))
@@ -299,7 +322,7 @@ def _refit_states(joint: Joint, lifted, cams: np.ndarray, cfg: StateRefineConfig
     def fit_and_decide(t: int, model: SurfaceModel) -> bool:
         """Fit frame ``t``; keep its tracked ``q`` if the depth agrees, else take the more
         confident of the two. True when the depth fit replaced ``q``."""
-        q_d, se, frac, rms = _fit_frame(joint, model, pts[t], lifted[t][1], cams[t], lo, hi, cfg)
+        q_d, se, frac, rms = _fit_frame(joint, model, pts[t], lifted[t][1], cams[t], lo, hi, cfg, free_offset)
         if se <= cfg.tail_max_se_rad and frac * pts[t].shape[0] >= cfg.tail_min_inliers:
             tail_q[t], tail_res[t] = q_d, rms
         conf_d = 0.0

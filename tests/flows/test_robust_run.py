@@ -14,6 +14,7 @@ import pytest
 from artitwin_core.masks import MaskSequence
 from flows._pipeline import SceneFailed
 from flows.scene import run_scene_inline
+from infra.store import ArtifactStore
 from schemas import PipelineConfig
 
 
@@ -73,6 +74,9 @@ def test_untrackable_and_depthless_candidates_are_dropped_not_exported(tiny_scen
     assert re.findall(r'<link name="([^"]+)"', urdf) == ["world", "base", "part_0"]
     assert re.findall(r'<joint name="([^"]+)"', urdf) == ["world_to_base", "part_0_joint"]
     assert summary["stages"]["final_masks"]["status"] == "computed"
+    # The kept part carries the part finder's depth-fitted joint beside its tracks' (joint_states' second opinion).
+    final = ArtifactStore(store).get(summary["stages"]["final_masks"]["key"])
+    assert [(j.name, j.joint_type) for j in final.depth_joints] == [("joint_0", "revolute")]
     notes = " ".join(summary["stages"]["settle_parts"]["notes"])
     assert "candidate part 5: dropped" in notes and "candidate part 6: dropped" in notes
 
