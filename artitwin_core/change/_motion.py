@@ -96,16 +96,20 @@ def _joint_from_motion(m: np.ndarray, centre: np.ndarray):
     return "revolute", axis, p, angle
 
 
-def _hole_counts(closed_points: np.ndarray, views: list[FrameView], cfg: PartConfig) -> np.ndarray:
+def _hole_counts(
+    closed_points: np.ndarray, views: list[FrameView], cfg: PartConfig, hidden: bool = False
+) -> np.ndarray:
     """``[T]`` how many pixels per frame see through the part's closed surface (how open and how
-    visible the part is there)."""
+    visible the part is there); with ``hidden``, how many see something nearer in front of it (a
+    part that moved only towards the camera hides its closed surface instead)."""
     tree = cKDTree(closed_points)
     counts = np.zeros(len(views), int)
     for t, v in enumerate(views):
         diff = v.rendered_depth - v.observed_depth
-        farther = np.isfinite(diff) & (diff < -depth_tolerance(v.rendered_depth, cfg.change))
-        if farther.any():
-            d, _ = tree.query(_to_world(v, v.rendered_depth, farther), distance_upper_bound=0.03)
+        tol = depth_tolerance(v.rendered_depth, cfg.change)
+        changed = np.isfinite(diff) & ((diff > tol) if hidden else (diff < -tol))
+        if changed.any():
+            d, _ = tree.query(_to_world(v, v.rendered_depth, changed), distance_upper_bound=0.03)
             counts[t] = int(np.isfinite(d).sum())
     return counts
 
@@ -141,14 +145,17 @@ def fit_part_motion(
 
 
 def _fit_setup(
-    closed_points: np.ndarray, views: list[FrameView], gravity, reference_frame: int | None, cfg: PartConfig
+    closed_points: np.ndarray, views: list[FrameView], gravity, reference_frame: int | None, cfg: PartConfig,
+    hidden: bool = False,
 ) -> tuple[np.ndarray, list[int]]:
-    """Unit up ``[3]`` and the candidate reference frames of :func:`fit_part_motion`."""
+    """Unit up ``[3]`` and the candidate reference frames of :func:`fit_part_motion`; ``hidden``:
+    the samples are surface hidden by something nearer (``find_moved_parts(..., hidden=True)``),
+    whose frames are ranked by how much of it is hidden, since nothing of it is seen through."""
     up = -np.asarray(gravity, dtype=np.float64)
     up /= np.linalg.norm(up)
     if reference_frame is not None:
         return up, [int(reference_frame)]
-    counts = _hole_counts(closed_points, views, cfg)
+    counts = _hole_counts(closed_points, views, cfg, hidden)
     frames = [len(views) - 1] + [int(t) for t in np.argsort(-counts)[:2] if counts[t] > 0]
     # Where the part is most open it may be seen worst: a door swung past the camera's line of
     # sight shows only its edge in the last frames, where no hinge explains anything and a
@@ -162,14 +169,22 @@ def _fit_setup(
 
 def _fit_ungrown(
     closed_points: np.ndarray, onset_frame: int, views: list[FrameView], up: np.ndarray, frames: list[int],
-    cfg: PartConfig, mesh: CanonicalMesh | None,
+    cfg: PartConfig, mesh: CanonicalMesh | None, still_supports: bool = True,
 ) -> PartModel:
     """The part's motion fitted at the best of ``frames``, before its growth.
 
     The best-supported frame's fit says which joint moved the part; the reference is then the
     most open frame whose own fit found the same joint (``_same_joint``), since the masks are
-    propagated from the reference and never search far past its state."""
+    propagated from the reference and never search far past its state.
+
+    ``still_supports=False`` (surface that was hidden, not seen vanished): the frames' fits are
+    compared by the support of their moved samples only (``motion_score``). Hidden surface
+    takes in the static surface around the part that the hand and arm hid; a small swing about
+    a hinge through that surface keeps it on the static scene, where it is supported, and beats
+    the true slide at a frame where the part is barely open."""
     fits = [_fit_at(closed_points, onset_frame, views[r], r, up, cfg, mesh) for r in dict.fromkeys(frames)]
+    if not still_supports:
+        fits = [(m, _reference_support(m, views[m.reference_frame], cfg, still_supports=False, score=True)) for m, _ in fits]
     best, _ = max(fits, key=lambda f: f[1])
     same = [m for m, score in fits if score > 0 and _same_joint(m, best)]
     best = max(same, key=lambda m: abs(m.reference_q), default=best)
@@ -191,12 +206,16 @@ def _same_joint(a: PartModel, b: PartModel, max_angle_rad: float = np.radians(10
     return float(np.linalg.norm(d[0] - d[1])) <= max_offset_m
 
 
-def _reference_support(model: PartModel, view: FrameView, cfg: PartConfig) -> int:
+def _reference_support(
+    model: PartModel, view: FrameView, cfg: PartConfig, still_supports: bool = True, score: bool = False
+) -> int | float:
     """How many of the part's samples (scoring subset) the reference frame's observation
-    supports at the fitted state."""
+    supports at the fitted state (with ``score``: the score, see-through samples counted
+    against it); ``still_supports`` as in :func:`motion_score`."""
     sub = _scoring_subset(model.closed_points)
     m = model.motion(model.reference_q)
-    return motion_score(view, sub @ m[:3, :3].T + m[:3, 3], sub, cfg)[1]
+    out = motion_score(view, sub @ m[:3, :3].T + m[:3, 3], sub, cfg, still_supports=still_supports)
+    return out[0] if score else out[1]
 
 
 def _drop_see_through(model: PartModel, view: FrameView, cfg: PartConfig) -> PartModel:

@@ -27,7 +27,7 @@ def _frame_cloud(view: FrameView, config: PartConfig):
 
 
 def motion_score(
-    view: FrameView, moved: np.ndarray, closed: np.ndarray, config: PartConfig
+    view: FrameView, moved: np.ndarray, closed: np.ndarray, config: PartConfig, *, still_supports: bool = True
 ) -> tuple[float, int, int]:
     """How well part samples moved to ``moved [N, 3]`` (from ``closed [N, 3]``, canonical frame)
     explain one frame's observation.
@@ -37,6 +37,11 @@ def motion_score(
     shows its back face far along the ray) and that observed point is a change, unless the
     sample has not moved (a closed part matches the canonical surface). It contradicts the
     motion when the observation lies behind it (we see through where the part would be).
+
+    ``still_supports=False``: a sample that has not moved (less than 3 cm) supports nothing. The
+    static scene then lends no support, and what is left measures how much of the observed change
+    the motion explains: the test for a surface that may only have been hidden (by the hand, the
+    arm), where a small motion about an axis through it keeps most samples on the static scene.
 
     Returns:
         score (supporting minus weighted see-through samples), supporting count, see-through count.
@@ -65,7 +70,8 @@ def motion_score(
     dist, nn = tree.query(moved[idx], distance_upper_bound=min(0.2, float(reach.max())))
     near = dist < reach
     still = np.linalg.norm(moved[idx] - closed[idx], axis=1) < 0.03
-    support = int(np.sum(near & (still | changed[np.minimum(nn, len(changed) - 1)])))
+    moved_onto_change = changed[np.minimum(nn, len(changed) - 1)]
+    support = int(np.sum(near & ((still | moved_onto_change) if still_supports else (~still & moved_onto_change))))
     return support - config.violation_weight * through, support, through
 
 

@@ -114,23 +114,53 @@ def screen_candidates(
     along its hinge vanishes later than the rest of it and is clustered apart. One that no motion
     explains (too little of it supported at its fitted state) is dropped.
 
+    When no vanished surface is kept, the surfaces hidden by something nearer
+    (``find_moved_parts(..., hidden=True)``, numbered after the vanished ones) are screened the
+    same way: a drawer pulled straight at a close-up camera leaves no vanished surface of its
+    own, and a sliver of vanished surface elsewhere (a carcass edge seen at a grazing angle,
+    where a millimetre of pose error looks like change) must not hide it. Only when none is
+    kept: the hand hides surface in every recording, and a part that vanished is seen better
+    by what vanished.
+
     Returns:
         the kept parts, the candidate index of each, and the fates of the others.
     """
     cfg = config or PartConfig()
+    vanished = find_moved_parts(views, cfg)
+    models, kept, fates = _screen(vanished, 0, views, frame, gravity, mesh, cfg, hidden=False)
+    if not models:
+        hidden = find_moved_parts(views, cfg, hidden=True)
+        models, kept, more = _screen(hidden, len(vanished), views, frame, gravity, mesh, cfg, hidden=True)
+        fates += more
+    return models, kept, fates
+
+
+def _screen(
+    candidates: list[tuple[np.ndarray, int]], first: int, views: list[FrameView], frame: int | None, gravity,
+    mesh: CanonicalMesh | None, cfg: PartConfig, hidden: bool,
+) -> tuple[list[PartModel], list[int], list[PartFate]]:
+    """:func:`screen_candidates` over ``candidates`` (closed samples and onset each), numbered
+    from ``first``; ``hidden``: they are surfaces hidden by something nearer, and only the
+    samples a fit moves onto observed change count as its support (``still_supports=False`` in
+    :func:`motion_score`): the static scene around what the hand hid supports any small motion."""
     models: list[PartModel] = []
     kept: list[int] = []
     fates: list[PartFate] = []
-    for i, (pts, onset) in enumerate(find_moved_parts(views, cfg)):
-        up, frames = _fit_setup(pts, views, gravity, frame, cfg)
-        model = _fit_ungrown(pts, onset, views, up, frames, cfg, mesh)
+    for i, (pts, onset) in enumerate(candidates, start=first):
+        up, frames = _fit_setup(pts, views, gravity, frame, cfg, hidden)
+        # Hidden surface is the part's silhouette at its most open, moved back onto the closed
+        # scene: larger than the part by the perspective (and by what the hand hid beside it).
+        # Its rim, moved out with the part, floats in front of the scene, which it does not
+        # contradict; so no see-through penalty in its fit.
+        fit_cfg = replace(cfg, violation_weight=0.0) if hidden else cfg
+        model = _fit_ungrown(pts, onset, views, up, frames, fit_cfg, mesh, still_supports=not hidden)
         host = _host_part(model, models, views, cfg)
         if host is not None:
             k, why = host
             models[k] = replace(models[k], closed_points=np.concatenate([models[k].closed_points, model.closed_points]))
             fates.append(PartFate(candidate=i, fate="merged", stage="part_masks", into=kept[k], reason=why))
             continue
-        support = _reference_support(model, views[model.reference_frame], cfg)
+        support = _reference_support(model, views[model.reference_frame], cfg, still_supports=not hidden)
         if support < cfg.min_part_support:
             # No motion of this surface explains what the reference frame sees: it vanished for
             # another reason (a cabinet side seen edge-on can vanish from the first frame on and

@@ -20,20 +20,26 @@ from artitwin_core.change._views import FrameView, _to_world
 from artitwin_core.geometry import unique_rows
 
 
-def find_moved_parts(views: list[FrameView], config: PartConfig | None = None) -> list[tuple[np.ndarray, int]]:
+def find_moved_parts(
+    views: list[FrameView], config: PartConfig | None = None, *, hidden: bool = False
+) -> list[tuple[np.ndarray, int]]:
     """Closed surfaces of the parts that moved: canonical surface seen vanished in several frames;
-    where none vanished, canonical surface hidden by something nearer in several frames
-    (``min_occluded_frames``).
+    with ``hidden``, canonical surface hidden by something nearer in several frames
+    (``min_occluded_frames``) instead.
+
+    A part that moved only towards the camera (a drawer pulled out straight at a close-up camera)
+    hides its closed front and reveals nothing behind it: it leaves no vanished surface, only a
+    hidden one. The hand hides surface too, so the hidden surfaces are candidates of last resort:
+    :func:`screen_candidates` turns to them when no vanished one is explained by a motion.
 
     Returns:
         per part, best first in onset order: closed surface samples ``[N, 3]`` (canonical frame,
         metres) and the onset frame index.
     """
     cfg = config or PartConfig()
-    parts = _changed_surfaces(views, cfg, nearer=False)
-    if not parts and cfg.min_occluded_frames > 0:
-        parts = _changed_surfaces(views, cfg, nearer=True)
-    return parts
+    if hidden:
+        return _changed_surfaces(views, cfg, nearer=True) if cfg.min_occluded_frames > 0 else []
+    return _changed_surfaces(views, cfg, nearer=False)
 
 
 def _changed_surfaces(views: list[FrameView], cfg: PartConfig, nearer: bool) -> list[tuple[np.ndarray, int]]:
