@@ -153,7 +153,7 @@ def _screen(
         # Its rim, moved out with the part, floats in front of the scene, which it does not
         # contradict; so no see-through penalty in its fit.
         fit_cfg = replace(cfg, violation_weight=0.0) if hidden else cfg
-        model = _fit_ungrown(pts, onset, views, up, frames, fit_cfg, mesh, still_supports=not hidden)
+        model = replace(_fit_ungrown(pts, onset, views, up, frames, fit_cfg, mesh, still_supports=not hidden), hidden=hidden)
         host = _host_part(model, models, views, cfg)
         if host is not None:
             k, why = host
@@ -236,10 +236,13 @@ def propagate_masks_backwards(
         # A drawer's samples that its reference frame still sees in place are static surface
         # (a door's stay: on its hinge side they are the door, seen in place at any angle).
         static = in_place(model, views[r], cfg) if model.joint_type == "prismatic" else None
+        # A hidden surface's rim is seen through once moved out (see PartModel.hidden): no
+        # see-through penalty in its state search either, or the closed state wins near the camera.
+        state_cfg = replace(cfg, violation_weight=0.0) if model.hidden else cfg
         for t in order:
             if t == r + 1:
                 current = states[r, k]  # forwards again from the reference state
-            current, scores[t, k] = _best_state(model, views[t], current, cfg, after_reference=t > r, static=static)
+            current, scores[t, k] = _best_state(model, views[t], current, state_cfg, after_reference=t > r, static=static)
             states[t, k] = current
     if cfg.grow_frames > 0:
         models = [_grow_over_frames(model, views, states[:, k], scores[:, k], mesh, cfg)

@@ -29,6 +29,9 @@ class PartModel:
         reference_q: the joint state there (radians or metres, signed along ``axis``).
         onset_frame: first frame in which the part was seen to have moved.
         front_normal: ``[3]`` unit outward normal of the closed front face (canonical frame).
+        hidden: its samples are surface hidden by something nearer, not surface seen vanished
+            (``find_moved_parts(..., hidden=True)``): larger than the part by the perspective,
+            their rim floats in front of the scene once moved out, which contradicts nothing.
     """
 
     closed_points: np.ndarray
@@ -39,6 +42,7 @@ class PartModel:
     reference_q: float
     onset_frame: int
     front_normal: np.ndarray
+    hidden: bool = False
 
     def motion(self, q: float) -> np.ndarray:
         """``[4, 4]`` canonical-from-closed transform at joint state ``q``."""
