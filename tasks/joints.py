@@ -129,7 +129,7 @@ def candidate_index(masks: MaskSequenceArtifact, label: int) -> int:
     return int(masks.candidates[label - 1]) if masks.candidates is not None else label - 1
 
 
-@stage(name="joint_states", version=12, config=JointStateConfig, output=JointSet)
+@stage(name="joint_states", version=13, config=JointStateConfig, output=JointSet)
 def refine_states(
     joints: JointSet,
     dynamic: CaptureArtifact,

@@ -229,6 +229,13 @@ class StateRefineConfig:
         axis_max_change_rad, axis_max_shift_m: ... and when it turned the axis and moved the
             line by no more than these from the input joint's (larger moves mean the model or
             the matches are wrong, not the tracks).
+        slide_front_max_deg: with ``refine_axis``, a slide whose axis is within this of the
+            normal of its front (the planes its frames show, ``fit_slide_axis_from_front``) is a
+            drawer, and a drawer slides along its front's normal: the axis becomes that normal
+            where the two disagree beyond their errors (0 turns this off; a sliding door, whose
+            front is parallel to its slide, is never touched)...
+        slide_front_z, slide_front_min_deg: ... by more than this many standard errors (the
+            tracks' and the planes' together) and more than this many degrees.
     """
 
     max_points: int = 1500
@@ -275,3 +282,6 @@ class StateRefineConfig:
     axis_max_pivot_se_m: float = 0.005
     axis_max_change_rad: float = float(np.radians(10.0))
     axis_max_shift_m: float = 0.05
+    slide_front_max_deg: float = 25.0
+    slide_front_z: float = 3.0
+    slide_front_min_deg: float = 1.0

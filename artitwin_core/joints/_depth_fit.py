@@ -25,7 +25,7 @@ are not one plane (a carved front, a drawer's box) are left to the tracks.
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import numpy as np
 
@@ -330,3 +330,64 @@ def fit_line_from_planes(joint: Joint, lifted, cams: np.ndarray, cfg: StateRefin
         pivot_se_m=pivot_se,
         thickness_m=thickness,
     )
+
+
+@dataclass(frozen=True)
+class FrontAxisFit:
+    """A drawer's front normal, from the planes its frames show (:func:`fit_slide_axis_from_front`).
+
+    Attributes:
+        axis: ``[3]`` unit normal, signed like the input joint's axis.
+        se_rad: its standard error (radians): the larger of the planes' formal error and their
+            scatter about it.
+        frames: how many frames' planes it combines.
+    """
+
+    axis: np.ndarray
+    se_rad: float
+    frames: int
+
+
+def fit_slide_axis_from_front(joint: Joint, lifted, cams: np.ndarray, cfg: StateRefineConfig) -> FrontAxisFit | None:
+    """The normal of a sliding part's front, combined over the frames that show it.
+
+    A drawer's front turns with none of its states, so every frame's points hold a plane of the
+    same normal (its front, or the box's back and inside faces, parallel to it); each frame's
+    plane within ``slide_front_max_deg`` of ``joint``'s axis holding ``plane_min_fraction`` of
+    its points is weighted by its precision (as in :func:`fit_line_from_planes`). None with
+    fewer than ``axis_min_frames`` such frames: a sliding door's front is parallel to its slide,
+    and no plane is looked for there.
+
+    Args:
+        joint: the prismatic joint (its axis is the guess).
+        lifted: per frame, the part's canonical points ``[N, 3]``, normals (unused) and whether
+            its mask was eroded (``lift_frame``).
+        cams: ``[T, 3]`` camera centres, canonical frame.
+        cfg: ``StateRefineConfig`` (``min_points``, ``plane_*``, ``axis_min_frames``,
+            ``slide_front_max_deg``).
+    """
+    axis = np.asarray(joint.axis, dtype=np.float64)
+    axis = axis / np.linalg.norm(axis)
+    within = replace(cfg, plane_normal_tol_deg=cfg.slide_front_max_deg)
+    rng = np.random.default_rng(0)
+    normals, weights = [], []
+    for t, (pts, _, eroded) in enumerate(lifted):
+        if not eroded or pts.shape[0] < cfg.min_points:  # an uneroded sliver is mostly its mixed outline
+            continue
+        guess = axis if axis @ (cams[t] - pts.mean(0)) >= 0 else -axis  # the face the camera sees
+        plane = _robust_plane(pts, guess, within, rng)
+        if plane is None or plane.fraction < cfg.plane_min_fraction:
+            continue
+        spread = float(np.sqrt(np.mean(np.sum((pts - plane.centroid) ** 2, 1))))
+        n_eff = max(plane.inliers / _CORRELATED_PIXELS, 1.0)
+        normals.append(plane.normal if plane.normal @ axis >= 0 else -plane.normal)
+        weights.append(n_eff / max(plane.sigma / max(spread, 1e-6), 1e-6) ** 2)
+    if len(normals) < cfg.axis_min_frames:
+        return None
+    n, w = np.asarray(normals), np.asarray(weights)
+    mean = (w[:, None] * n).sum(0)
+    mean /= np.linalg.norm(mean)
+    off = np.arccos(np.clip(n @ mean, -1.0, 1.0))
+    formal = 1.0 / np.sqrt(w.sum())
+    scatter = float(np.sqrt((w * off**2).sum() / w.sum() / (len(n) - 1)))
+    return FrontAxisFit(axis=mean, se_rad=float(max(formal, scatter)), frames=len(n))

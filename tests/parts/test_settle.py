@@ -243,3 +243,19 @@ def test_a_joint_that_never_moves_its_points_far_enough_to_tell_is_not_kept(draw
     fates = {f.candidate: f for f in decision.fates}
     assert decision.kept_labels == (1,), decision.fates
     assert (fates[1].fate, fates[1].into) == ("merged", 0) and "never moves its points" in fates[1].reason, fates[1]
+
+
+def test_tracks_cannot_keep_what_the_part_finder_saw_hardly_move(drawer):
+    """Short tracks on background beside the arm gave a candidate a 50 deg turn, while the part
+    finder fitted the change in its depth with a 1.5 deg one (generalization seed 20): the change
+    is not a part moving, and the candidate is not kept."""
+    scene = drawer
+    masks = _candidates(scene)
+    truth = scene.truth
+    slide = truth.joints[0]
+    creep = replace(slide, q=0.005 * np.asarray(slide.q) / float(np.max(np.abs(slide.q))))
+    decision = settle_parts(scene.dynamic, masks, truth.canonical_from_dynamic_session, {1: slide, 3: slide},
+                            tracks={1: 200, 3: 300}, depth_joints={1: slide, 3: creep})
+    fates = {f.candidate: f for f in decision.fates}
+    assert decision.kept_labels == (1,), decision.fates
+    assert fates[2].fate == "dropped" and "the part finder's fit to its change in depth moves it by only 5 mm" in fates[2].reason
