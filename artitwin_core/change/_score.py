@@ -115,9 +115,8 @@ def _best_state(
     last, so the part may open further than there. ``static``: ``[N]`` over the scored samples
     (:func:`in_place`), those left out of the score where they are under half of them: static
     surface the candidate took in is seen through once moved out with the part, and with the
-    see-through penalty it sinks the true state below the closed one (generalization seed 29:
-    about 240 of a drawer's ~1070 samples, the closed state scoring 240 against the true
-    state's 180-215 near the camera)."""
+    see-through penalty it sinks the true state below the closed one near a close-up camera
+    (docs/generalization.md)."""
     span = cfg.search_window * abs(model.reference_q)
     # A drawer's reference frame need not be where it is most open (a tilting drawer is fitted
     # short of its full travel); a door's usually is, and searching past it invites

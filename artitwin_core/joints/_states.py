@@ -273,8 +273,8 @@ def refine_joint_states(
 def _slide_along_front(joint: Joint, lifted, cams: np.ndarray, cfg: StateRefineConfig) -> Joint:
     """``joint`` (a slide, states refined) with its axis the normal of its front where the two
     disagree beyond their errors (``slide_front_*``), and its states refitted along it. Tracks
-    crossed by a hand drift with it: generalization seed 27's drawer slid 18.5 deg off its
-    front's normal, seed 26's 14.5 deg, with standard errors of 2-3 deg."""
+    crossed by a hand drift sideways with it, and depth cannot see a slide's in-plane direction
+    (docs/accuracy.md)."""
     fit = fit_slide_axis_from_front(joint, lifted, cams, cfg)
     if fit is None:
         return joint

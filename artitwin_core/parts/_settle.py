@@ -10,7 +10,7 @@ must end as one of three fates, and never take the run down:
   show no motion (fitted fixed) or could not be fitted at all, the part finder's joint, fitted
   to the part's change in depth, stands in for theirs if the depth confirms it: on a weakly
   textured door the tracks stick to the static edges around it and say "fixed" while the door
-  swings 58 deg (generalization seeds 2, 8 and 13). A screw is kept as the slide or turn its
+  swings. A screw is kept as the slide or turn its
   depth explains nearly as well, unless the user asked for the screw: a drawer front turning in
   its own plane looks the same in depth, and tracks that a hand crosses can carry that turn;
 - **merged** into a kept part: it has the same joint and states as that part, or that part's
@@ -156,8 +156,8 @@ def settle_parts(
         finder = (depth_joints or {}).get(lab)
         if not c.from_depth and finder is not None and finder.joint_type != "fixed" and _too_small(finder, cfg):
             # The part finder fitted the change in its depth with hardly any motion: the change
-            # is not a part moving (the fringe of the static model, seen from nearer; seed 20 with
-            # the hidden-surface screening), whatever its short tracks on the background say.
+            # is not a part moving (the fringe of the static model, seen from nearer), whatever
+            # short tracks on the background say.
             unconfirmed[lab] = (f"the part finder's fit to its change in depth moves it by only {_range(finder, cfg)}, "
                                 f"although the {c.joint.joint_type} joint fitted to its {c.tracks} tracks spans "
                                 f"{_range(c.joint, cfg, limit=False)}")
@@ -180,8 +180,8 @@ def settle_parts(
         fit = _misfits(c, _joint(c), cfg)
         if fit is None:
             # Its motion never carries its points min_discrimination_m beyond where it sits closed
-            # in a frame with depth: nothing confirms it moves (seed 10: a piece of the arm
-            # beside a drawer, fitted an 11 deg turn about its own corner).
+            # in a frame with depth: nothing confirms it moves (a piece of the arm beside a part,
+            # fitted a small turn about its own corner).
             kept.remove(lab)
             unconfirmed[lab] = (f"the {_joint(c).joint_type} joint fitted to its {c.tracks} tracks never moves its points "
                                 f"{1e3 * cfg.min_discrimination_m:.0f} mm beyond where they sit closed in a frame with depth, "
@@ -225,7 +225,7 @@ def _stand_in(
     states refitted to ``c``'s depth, where that depth confirms it; the tests of
     :func:`settle_parts` then treat it like any fitted joint. A door's line must be confirmed by
     its face planes too: its states are free per frame, so a line on the wrong edge of the door
-    can still move its depth back near its closed surface (generalization seed 8)."""
+    can still move its depth back near its closed surface."""
     if depth.joint_type == "fixed" or c.depth_px < cfg.min_depth_points:
         return
     rotates = depth.joint_type in ("revolute", "screw")
@@ -259,7 +259,7 @@ def _reduce_screw(c: _Candidate, fit: tuple[float, float], cfg: SettleConfig) ->
     """Replace ``c``'s screw by its slide (the screw's travel along its axis) or its turn (the
     screw without pitch) where ``c``'s depth explains that nearly as well (``screw_keep_ratio``).
     Furniture hardly ever screws; tracks on a drawer that a hand or a door crosses can carry a turn
-    the drawer does not make (generalization seed 3: a drawer fitted a 20 deg screw over 26 cm)."""
+    the drawer does not make."""
     screw = _joint(c)
     q = np.asarray(screw.q, np.float64)
     slide_q = screw.pitch * q
