@@ -106,7 +106,10 @@ def describe(spec) -> str:
                  + (f" sh{spec.shelves}" if spec.shelves else "") + ("" if spec.interior_items else " empty"))
     parts.append(f"{spec.static_path}>{spec.dynamic_path}")
     parts.append(f"n{spec.noise_level:.1f} off{spec.session_offset_m:.1f}")
-    effects = dict(spec.effects)
+    from artitwin_core.synth import EFFECTS
+
+    # A named scene may give an effect no parameters: its defaults apply.
+    effects = {name: {**EFFECTS[name].defaults, **params} for name, params in spec.effects}
     if "pose_lag" in effects:
         parts.append(f"lag{effects['pose_lag']['seconds'] * 30 / spec.dynamic_stride:.1f}f")
     if "exposure" in effects:
