@@ -85,3 +85,13 @@ def test_a_summary_that_reports_a_failure_is_a_crash(bench):
     assert "fit_joints" in bench.failure_of({"stages": {"fit_joints": {"status": "failed", "error": "0 valid tracks"}}})
     assert "boom" in bench.failure_of({"failed": {"stage": "articulate", "error": "boom"}})
     json.dumps(bench.TARGETS)  # the results file carries them
+
+
+def test_every_named_scene_is_described_with_its_effects_defaults(bench):
+    """`--named high-noise` and `sensor-effects` crashed in the harness: they give the exposure
+    effect no parameters, and the description read them without the defaults."""
+    from artitwin_core.synth import BENCHMARK_SCENES
+
+    described = {name: bench.describe(spec) for name, spec in BENCHMARK_SCENES.items()}
+    assert described["high-noise"].endswith("exp0.35") and described["sensor-effects"].endswith("exp0.35")
+    assert "exp" not in described["tiny"]
