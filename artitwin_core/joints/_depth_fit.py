@@ -78,6 +78,15 @@ class _Plane:
     fraction: float  # inliers / points
 
 
+def _plane_variances(points: np.ndarray, plane: _Plane) -> tuple[float, float]:
+    """Variances of a plane fitted to ``points``: of its normal (radians^2) and of its offset
+    (metres^2). The offset's is sigma^2 / N_eff; the normal's is that divided by the squared
+    spread of the points across the plane (its "lever arm")."""
+    n_eff = max(plane.inliers / _CORRELATED_PIXELS, 1.0)
+    spread = float(np.sqrt(np.mean(np.sum((points - plane.centroid) ** 2, 1))))
+    return (plane.sigma / spread) ** 2 / n_eff, plane.sigma**2 / n_eff
+
+
 def _weighted_plane(points: np.ndarray, w: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     c = (w[:, None] * points).sum(0) / w.sum()
     e = points - c
@@ -259,15 +268,8 @@ def fit_line_from_planes(joint: Joint, lifted, cams: np.ndarray, cfg: StateRefin
     normals = np.stack([planes[t][0].normal for t in frames])
     offsets = np.array([planes[t][0].normal @ planes[t][0].centroid for t in frames])
     inside = np.array([planes[t][1] for t in frames])
-    # Precision of each plane: sigma^2 / N_eff for the offset; for the normal, divided by the
-    # squared spread of the points across it (the plane's "lever arm").
-    n_eff = np.array([max(planes[t][0].inliers / _CORRELATED_PIXELS, 1.0) for t in frames])
     sig = np.array([planes[t][0].sigma for t in frames])
-    spread = np.array(
-        [np.sqrt(np.mean(np.sum((lifted[t][0] - planes[t][0].centroid) ** 2, 1))) for t in frames]
-    )
-    var_n = (sig / spread) ** 2 / n_eff
-    var_off = sig**2 / n_eff
+    var_n, var_off = np.array([_plane_variances(lifted[t][0], planes[t][0]) for t in frames]).T
     lever = np.array([np.linalg.norm(planes[t][0].centroid - pivot_in) for t in frames])
 
     # A frame whose plane disagrees with the others' line (an edge face taken for the face, a
@@ -354,7 +356,7 @@ def fit_slide_axis_from_front(joint: Joint, lifted, cams: np.ndarray, cfg: State
     A drawer's front turns with none of its states, so every frame's points hold a plane of the
     same normal (its front, or the box's back and inside faces, parallel to it); each frame's
     plane within ``slide_front_max_deg`` of ``joint``'s axis holding ``plane_min_fraction`` of
-    its points is weighted by its precision (as in :func:`fit_line_from_planes`). None with
+    its points is weighted by its precision (:func:`_plane_variances`). None with
     fewer than ``axis_min_frames`` such frames: a sliding door's front is parallel to its slide,
     and no plane is looked for there.
 
@@ -378,10 +380,8 @@ def fit_slide_axis_from_front(joint: Joint, lifted, cams: np.ndarray, cfg: State
         plane = _robust_plane(pts, guess, within, rng)
         if plane is None or plane.fraction < cfg.plane_min_fraction:
             continue
-        spread = float(np.sqrt(np.mean(np.sum((pts - plane.centroid) ** 2, 1))))
-        n_eff = max(plane.inliers / _CORRELATED_PIXELS, 1.0)
         normals.append(plane.normal if plane.normal @ axis >= 0 else -plane.normal)
-        weights.append(n_eff / max(plane.sigma / max(spread, 1e-6), 1e-6) ** 2)
+        weights.append(1.0 / _plane_variances(pts, plane)[0])
     if len(normals) < cfg.axis_min_frames:
         return None
     n, w = np.asarray(normals), np.asarray(weights)
