@@ -64,14 +64,12 @@ def settle_candidate_parts(
     kept, selection = [], {}
     for k, lab in enumerate(decision.kept_labels):
         name = f"joint_{k}"
-        if lab in decision.from_depth:  # the part finder's joint stands in for the tracks'
-            kept.append(to_artifact(JointParams, decision.replaced[lab], name=name))
-            selection[name] = {"joint_from_depth": 1.0}
-            continue
-        old = by_label[lab]
-        new = to_artifact(JointParams, decision.replaced[lab], name=name) if lab in decision.replaced else None
-        kept.append(new or old.model_copy(update={"name": name}))  # a screw its depth reduced, or the tracks' joint
-        selection[name] = dict(joints.selection.get(old.name, {}))
+        # The part finder's joint standing in, a screw its depth reduced, or the tracks' joint.
+        replaced = decision.replaced.get(lab)
+        kept.append(to_artifact(JointParams, replaced, name=name) if replaced is not None
+                    else by_label[lab].model_copy(update={"name": name}))
+        selection[name] = ({"joint_from_depth": 1.0} if lab in decision.from_depth
+                           else dict(joints.selection.get(by_label[lab].name, {})))
     return JointSet(
         joints=kept,
         selection=selection,
