@@ -189,7 +189,7 @@ def settle_parts(
         elif not _confirms(fit, cfg):
             kept.remove(lab)
             unconfirmed[lab] = (f"its depth does not confirm the {_joint(c).joint_type} joint fitted to its {c.tracks} tracks "
-                                f"({1e3 * fit[0]:.0f} mm from its closed surface moved back by it, {1e3 * fit[1]:.0f} mm held still)")
+                                f"({_own_misfits(fit)})")
         elif _joint(c).joint_type == "screw" and lab not in screws_asked:
             _reduce_screw(c, fit, cfg)
     # A piece of a bigger part fitted with a joint of its own (a strip along a door's edge): merged
@@ -244,15 +244,14 @@ def _stand_in(
         return
     fit = _misfits(c, joint, cfg)
     if fit is None or not _confirms(fit, cfg):
-        told = "no frame moves it enough to tell" if fit is None else (
-            f"{1e3 * fit[0]:.0f} mm from its closed surface moved back by it, {1e3 * fit[1]:.0f} mm held still")
+        told = "no frame moves it enough to tell" if fit is None else _own_misfits(fit)
         c.refused = f"the part finder's {depth.joint_type} joint was not taken: its depth does not confirm it ({told})"
         return
     why = _no_joint_reason(c, earlier)
     c.joint = joint
     c.from_depth = (f"{why}; the part finder's {depth.joint_type} joint, fitted to its change in depth, stands in"
                     f"{' (its line refitted to its face planes)' if rotates else ''}: its depth confirms it "
-                    f"({1e3 * fit[0]:.0f} mm from its closed surface moved back by it, {1e3 * fit[1]:.0f} mm held still)")
+                    f"({_own_misfits(fit)})")
 
 
 def _reduce_screw(c: _Candidate, fit: tuple[float, float], cfg: SettleConfig) -> None:
@@ -278,6 +277,11 @@ def _reduce_screw(c: _Candidate, fit: tuple[float, float], cfg: SettleConfig) ->
     c.reduced = (f"kept as a {simpler.joint_type} joint: its depth explains that ({1e3 * moving:.0f} mm from its closed "
                  f"surface moved back by it) about as well as the screw fitted to its {c.tracks} tracks "
                  f"({1e3 * fit[0]:.0f} mm; a screw is kept only below {cfg.screw_keep_ratio:g} of the simpler joint's)")
+
+
+def _own_misfits(fit: tuple[float, float]) -> str:
+    """A candidate's misfits under its own joint (:func:`_misfits`), in words."""
+    return f"{1e3 * fit[0]:.0f} mm from its closed surface moved back by it, {1e3 * fit[1]:.0f} mm held still"
 
 
 def _confirms(fit: tuple[float, float], cfg: SettleConfig) -> bool:
