@@ -33,7 +33,7 @@ from artitwin_core.capture._drift import (
     sift_matches,
 )
 from artitwin_core.capture._types import Capture
-from artitwin_core.geometry import backproject
+from artitwin_core.geometry import depth_normals
 from artitwin_core.geometry import pixel_rays as camera_rays
 
 
@@ -94,16 +94,6 @@ class DepthCalibration:
     initial_residual_m: float = float("nan")
 
 
-def _normals(z: np.ndarray, k: np.ndarray) -> np.ndarray:
-    """``[H, W, 3]`` unit normals (camera frame) of a z-depth map, NaN where undefined."""
-    p = backproject(z, k)
-    du, dv = np.full_like(p, np.nan), np.full_like(p, np.nan)
-    du[:, 1:-1] = p[:, 2:] - p[:, :-2]
-    dv[1:-1] = p[2:] - p[:-2]
-    n = np.cross(du, dv)
-    return n / np.linalg.norm(n, axis=-1, keepdims=True)
-
-
 # ``DepthCalibrationConfig.step_tolerance_m`` measures a step at this distance from the camera.
 _TOLERANCE_REACH_M = 2.0
 
@@ -120,7 +110,7 @@ def _target_maps(capture: Capture, j: int, a: float, b: float, cfg: DepthCalibra
     if conf is not None:
         dj_map = np.where(np.asarray(conf[j]) >= cfg.min_confidence, dj_map, np.nan)  # NaN drops the sample
     zs = cv2.blur(np.nan_to_num(a * dj_map + b).astype(np.float32), (5, 5)).astype(np.float64)
-    return dj_map, _normals(np.where(np.isfinite(dj_map), zs, np.nan), kj)
+    return dj_map, depth_normals(np.where(np.isfinite(dj_map), zs, np.nan), kj)
 
 
 def _source_samples(capture: Capture, i: int, cfg: DepthCalibrationConfig) -> tuple[np.ndarray, np.ndarray]:

@@ -9,6 +9,7 @@ by ``raster_intrinsics``.
 
 from artitwin_core.geometry._camera import (
     backproject,
+    depth_normals,
     nearest_pixel,
     pixel_grid,
     pixel_rays,
@@ -32,6 +33,7 @@ __all__ = [
     "axis_angle_to_matrix",
     "backproject",
     "check_rigid",
+    "depth_normals",
     "interpolate_poses",
     "invert_se3",
     "make_se3",

@@ -82,6 +82,20 @@ def backproject(depth, intrinsics, u=None, v=None) -> np.ndarray:
     return pixel_rays(intrinsics, u, v) * z[..., None]
 
 
+def depth_normals(depth, intrinsics) -> np.ndarray:
+    """``[H, W, 3]`` unit surface normals (camera frame) of a z-depth map ``[H, W]`` from
+    central differences of its points (:func:`backproject`), NaN where a neighbour is invalid
+    and on the image border. Their sign follows the pixel grid (``du x dv``): a surface facing
+    the camera gets a positive z."""
+    p = backproject(depth, intrinsics)
+    du, dv = np.full_like(p, np.nan), np.full_like(p, np.nan)
+    du[:, 1:-1] = p[:, 2:] - p[:, :-2]
+    dv[1:-1] = p[2:] - p[:-2]
+    n = np.cross(du, dv)
+    with np.errstate(invalid="ignore", divide="ignore"):
+        return n / np.linalg.norm(n, axis=-1, keepdims=True)
+
+
 def project(points, intrinsics, min_z: float = 1e-9) -> tuple[np.ndarray, np.ndarray]:
     """Image points of camera points ``[..., 3]`` (metres), through ``intrinsics`` ``[4]`` or one
     camera per leading index of the points (``[..., 4]``, as :func:`pixel_rays`).

@@ -13,6 +13,7 @@ from hypothesis.extra.numpy import arrays
 from artitwin_core.gaussians import rasterize
 from artitwin_core.geometry import (
     backproject,
+    depth_normals,
     invert_se3,
     nearest_pixel,
     pixel_grid,
@@ -57,6 +58,20 @@ def test_whole_depth_map_pixel_centres_are_integers():
     np.testing.assert_array_equal(backproject(depth[::2, ::2], k, u, v), pts[::2, ::2])
     with pytest.raises(ValueError):
         backproject(depth[0], k)
+
+
+def test_depth_normals_of_a_tilted_plane():
+    # The plane n . p = 1.5 with n 30 deg off the optical axis, seen by a 40 x 30 camera.
+    n = np.array([np.sin(np.radians(30.0)), 0.0, np.cos(np.radians(30.0))])
+    k = (40.0, 40.0, 19.5, 14.5)
+    u, v = pixel_grid(40, 30)
+    rays = np.stack([(u - k[2]) / k[0], (v - k[3]) / k[1], np.ones_like(u, dtype=float)], -1)
+    depth = 1.5 / (rays @ n)
+    depth[10, 10] = np.nan  # an invalid pixel spoils its four neighbours' differences
+    normals = depth_normals(depth, k)
+    ok = np.isfinite(normals).all(-1)
+    assert ok.sum() == 38 * 28 - 4 and not ok[0].any() and not ok[:, -1].any()
+    np.testing.assert_allclose(normals[ok], np.broadcast_to(n, (ok.sum(), 3)), atol=1e-9)
 
 
 @pytest.fixture(scope="module")
