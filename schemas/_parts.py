@@ -43,6 +43,12 @@ class PartStageConfig(StageConfig):
         description="When no canonical surface vanished, a voxel hidden by something nearer in this many frames is a "
         "candidate's closed surface (a part moved only towards the camera).",
     )
+    hidden_parallel_deg: float = Field(
+        default=15.0, ge=0,
+        description="Surface counts as hidden only where the nearer surface faces its way within this angle, degrees "
+        "(a front slid along its normal; a hand, an arm or a turned door hides surface at an angle); 90 or more: any.",
+    )
+    min_hidden_part_voxels: int = Field(default=20, ge=1, description="min_part_voxels for hidden surface.")
     sample_m: float = Field(default=0.01, gt=0, description="Spacing of a part's surface samples, metres.")
     max_rotation_rad: float = Field(default=2.0, gt=0, description="Range of the door hypotheses, radians.")
     max_translation_m: float = Field(default=0.7, gt=0, description="Range of the drawer hypotheses, metres.")

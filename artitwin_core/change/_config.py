@@ -45,6 +45,14 @@ class PartConfig:
             closed front and reveals nothing behind it); then a voxel hidden by something nearer
             in this many frames is a candidate's closed surface. The hand hides surface too, but
             no motion of that surface explains what is seen, and the candidate is dropped.
+        hidden_parallel_deg: a voxel counts as hidden only where the nearer surface faces the
+            way the hidden one does, within this angle (degrees; 90 or more: any). A part that
+            hid its closed surface without leaving any vanished was pulled along its front's
+            normal, so its front, seen nearer, is parallel to the closed front it hides; a hand,
+            an arm, or a door turned open hides surface at an angle.
+        min_hidden_part_voxels: ``min_part_voxels`` for hidden surface: only where the front
+            is seen over its own closed place (and not behind the hand or another part) does
+            it count, a strip of the front at an oblique view.
         sample_m: spacing of the part's surface samples (metres).
         max_rotation_rad, max_translation_m: range of the door / drawer hypotheses.
         support_distance_m: an observed point this close (3D, plus 5 mm per m^2 of depth)
@@ -136,6 +144,8 @@ class PartConfig:
     onset_m_per_s: float = 0.15
     min_part_voxels: int = 60
     min_occluded_frames: int = 4
+    hidden_parallel_deg: float = 15.0
+    min_hidden_part_voxels: int = 20
     sample_m: float = 0.01
     max_rotation_rad: float = 2.0
     max_translation_m: float = 0.7

@@ -11,6 +11,7 @@ from __future__ import annotations
 
 from dataclasses import dataclass, replace
 
+import cv2
 import numpy as np
 from scipy.spatial import cKDTree
 
@@ -119,8 +120,8 @@ def screen_candidates(
     same way: a drawer pulled straight at a close-up camera leaves no vanished surface of its
     own, and a sliver of vanished surface elsewhere (a carcass edge seen at a grazing angle,
     where a millimetre of pose error looks like change) must not hide it. Only when none is
-    kept: the hand hides surface in every recording, and a part that vanished is seen better
-    by what vanished.
+    kept: a part that vanished is seen better by what vanished. (:func:`segment_parts` then
+    screens the hidden surface its parts' labels do not explain, for a drawer beside a door.)
 
     Returns:
         the kept parts, the candidate index of each, and the fates of the others.
@@ -137,26 +138,31 @@ def screen_candidates(
 
 def _screen(
     candidates: list[tuple[np.ndarray, int]], first: int, views: list[FrameView], frame: int | None, gravity,
-    mesh: CanonicalMesh | None, cfg: PartConfig, hidden: bool,
+    mesh: CanonicalMesh | None, cfg: PartConfig, hidden: bool, earlier: list[PartModel] = (),
 ) -> tuple[list[PartModel], list[int], list[PartFate]]:
     """:func:`screen_candidates` over ``candidates`` (closed samples and onset each), numbered
     from ``first``; ``hidden``: they are surfaces hidden by something nearer, and only the
     samples a fit moves onto observed change count as its support (``still_supports=False`` in
-    :func:`motion_score`): the static scene around what the hand hid supports any small motion."""
+    :func:`motion_score`): the static scene around what the hand hid supports any small motion.
+    A candidate that one of the ``earlier`` parts hosts is dropped."""
     models: list[PartModel] = []
     kept: list[int] = []
     fates: list[PartFate] = []
     for i, (pts, onset) in enumerate(candidates, start=first):
         up, frames = _fit_setup(pts, views, gravity, frame, cfg, hidden)
-        # Hidden surface is the part's silhouette at its most open, moved back onto the closed
-        # scene: larger than the part by the perspective (and by what the hand hid beside it).
-        # Its rim, moved out with the part, floats in front of the scene, which it does not
-        # contradict; so no see-through penalty in its fit.
-        fit_cfg = replace(cfg, violation_weight=0.0) if hidden else cfg
+        # Hidden surface is the part's front, moved back from where it was seen nearer, facing
+        # the closed surface's way (``hidden_parallel_deg``): only a slide does that, so no
+        # swing is tried. The front's rim, moved out, floats in front of the scene, which it
+        # does not contradict; so no see-through penalty in its fit.
+        fit_cfg = replace(cfg, violation_weight=0.0, max_rotation_rad=0.0) if hidden else cfg
         model = replace(_fit_ungrown(pts, onset, views, up, frames, fit_cfg, mesh, still_supports=not hidden), hidden=hidden)
-        host = _host_part(model, models, views, cfg)
+        host = _host_part(model, [*earlier, *models], views, cfg)
+        if host is not None and host[0] < len(earlier):
+            fates.append(PartFate(candidate=i, fate="dropped", stage="part_masks",
+                                  reason=f"hidden where part {host[0]} moved: {host[1]}"))
+            continue
         if host is not None:
-            k, why = host
+            k, why = host[0] - len(earlier), host[1]
             models[k] = replace(models[k], closed_points=np.concatenate([models[k].closed_points, model.closed_points]))
             fates.append(PartFate(candidate=i, fate="merged", stage="part_masks", into=kept[k], reason=why))
             continue
@@ -292,4 +298,32 @@ def segment_parts(
     views = frame_views(dynamic, np.asarray(canonical_from_session, dtype=np.float64), mesh)
     models, kept, fates = screen_candidates(views, None, gravity=gravity, mesh=mesh, config=cfg)
     seg = propagate_masks_backwards(models, views, dynamic, mesh, cfg)
+    if models and not models[0].hidden and cfg.min_occluded_frames > 0:
+        # A drawer pulled straight at the camera hides its front and leaves nothing vanished,
+        # whatever else vanished beside it (a door above it): what the parts found do not
+        # explain of the hidden surface is screened too.
+        first = max([*kept, *(f.candidate for f in fates)]) + 1
+        more, more_kept, more_fates = _screen_unexplained_hidden(seg, views, first, gravity, mesh, cfg)
+        fates += more_fates
+        if more:
+            models, kept = models + more, kept + more_kept
+            seg = propagate_masks_backwards(models, views, dynamic, mesh, cfg)
     return replace(seg, candidates=np.asarray(kept, dtype=np.int32), fates=tuple(fates))
+
+
+def _screen_unexplained_hidden(
+    seg: PartSegmentation, views: list[FrameView], first: int, gravity, mesh: CanonicalMesh, cfg: PartConfig
+) -> tuple[list[PartModel], list[int], list[PartFate]]:
+    """:func:`screen_candidates` for the surfaces hidden by something nearer where no part of
+    ``seg`` is seen (its labels, grown by a pixel), candidates numbered from ``first``. One that
+    a part of ``seg`` hosts (:func:`_host_part`) is dropped, not merged: that part's surface
+    was found as it vanished, and what it hid beside its labels (a door turned a little, facing
+    almost the way it did closed) would only blur it."""
+    h, w = views[0].observed_depth.shape
+    kernel = np.ones((3, 3), np.uint8)
+    explained = [
+        cv2.resize(cv2.dilate((np.asarray(p) > 0).astype(np.uint8), kernel), (w, h), interpolation=cv2.INTER_AREA) > 0
+        for p in seg.masks.part
+    ]
+    hidden = find_moved_parts(views, cfg, hidden=True, explained=explained)
+    return _screen(hidden, first, views, None, gravity, mesh, cfg, hidden=True, earlier=seg.models)

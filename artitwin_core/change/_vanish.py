@@ -17,11 +17,12 @@ from scipy.spatial import cKDTree
 from artitwin_core.change._config import PartConfig
 from artitwin_core.change._detect import depth_tolerance
 from artitwin_core.change._views import FrameView, _to_world
-from artitwin_core.geometry import unique_rows
+from artitwin_core.geometry import depth_normals, unique_rows
 
 
 def find_moved_parts(
-    views: list[FrameView], config: PartConfig | None = None, *, hidden: bool = False
+    views: list[FrameView], config: PartConfig | None = None, *, hidden: bool = False,
+    explained: list[np.ndarray] | None = None,
 ) -> list[tuple[np.ndarray, int]]:
     """Closed surfaces of the parts that moved: canonical surface seen vanished in several frames;
     with ``hidden``, canonical surface hidden by something nearer in several frames
@@ -29,8 +30,16 @@ def find_moved_parts(
 
     A part that moved only towards the camera (a drawer pulled out straight at a close-up camera)
     hides its closed front and reveals nothing behind it: it leaves no vanished surface, only a
-    hidden one. The hand hides surface too, so the hidden surfaces are candidates of last resort:
-    :func:`screen_candidates` turns to them when no vanished one is explained by a motion.
+    hidden one. Only surface hidden by a nearer one facing its way counts
+    (``hidden_parallel_deg``: a hand, an arm or a turned door hides surface at an angle), and it
+    is taken where the nearer surface, moved back along the hidden one's normal, meets it: the
+    front's closed place. These are candidates of last resort: :func:`screen_candidates` turns
+    to them when no vanished one is explained by a motion, :func:`segment_parts` where the parts
+    found do not explain them (``explained``).
+
+    Args:
+        explained: per frame, ``[h, w]`` bool at depth resolution: pixels whose change is
+            already accounted for (the parts found, where they are seen), left out of the votes.
 
     Returns:
         per part, best first in onset order: closed surface samples ``[N, 3]`` (canonical frame,
@@ -38,11 +47,13 @@ def find_moved_parts(
     """
     cfg = config or PartConfig()
     if hidden:
-        return _changed_surfaces(views, cfg, nearer=True) if cfg.min_occluded_frames > 0 else []
-    return _changed_surfaces(views, cfg, nearer=False)
+        return _changed_surfaces(views, cfg, True, explained) if cfg.min_occluded_frames > 0 else []
+    return _changed_surfaces(views, cfg, False, explained)
 
 
-def _changed_surfaces(views: list[FrameView], cfg: PartConfig, nearer: bool) -> list[tuple[np.ndarray, int]]:
+def _changed_surfaces(
+    views: list[FrameView], cfg: PartConfig, nearer: bool, explained: list[np.ndarray] | None = None
+) -> list[tuple[np.ndarray, int]]:
     """:func:`find_moved_parts` for canonical surface seen vanished (observed farther than
     rendered), or with ``nearer``, hidden by something nearer."""
     vox = cfg.vanish_voxel_m
@@ -57,9 +68,23 @@ def _changed_surfaces(views: list[FrameView], cfg: PartConfig, nearer: bool) -> 
             # it also drops the thin hole a drawer seen head-on leaves, so it is off by default and
             # the votes over frames and the cluster size reject the edge noise instead.
             changed = cv2.morphologyEx(changed.astype(np.uint8), cv2.MORPH_OPEN, kernel).astype(bool)
+        normals = None
+        if nearer and cfg.hidden_parallel_deg < 90.0:
+            parallel, normals = _parallel(v, cfg.hidden_parallel_deg)
+            changed &= parallel
+        if explained is not None:
+            changed &= ~explained[t]
         if not changed.any():
             continue
         p = _to_world(v, v.rendered_depth, changed)
+        if normals is not None:
+            # The nearer surface faces the hidden one's way: a front slid along its normal. Its
+            # closed place is the observed point moved back along that normal onto the canonical
+            # surface's plane (not the surface behind it along the ray, which an oblique view
+            # puts beside the front, on whatever lies there).
+            n = normals[changed] @ v.world_from_camera[:3, :3].T
+            o = _to_world(v, v.observed_depth, changed)
+            p = o - n * ((o - p) * n).sum(-1, keepdims=True)
         k = np.floor(p / vox).astype(np.int64)
         keys.append(k)
         frames.append(np.full(len(k), t))
@@ -73,7 +98,8 @@ def _changed_surfaces(views: list[FrameView], cfg: PartConfig, nearer: bool) -> 
     pairs = unique_rows(np.concatenate([keys_all, frames_all[:, None]], 1))[0]
     vkeys, inv_pairs, counts = unique_rows(pairs[:, :3])
     good = counts >= (cfg.min_occluded_frames if nearer else cfg.min_vanish_frames)
-    if good.sum() < cfg.min_part_voxels:
+    min_voxels = cfg.min_hidden_part_voxels if nearer else cfg.min_part_voxels
+    if good.sum() < min_voxels:
         return []
     first_frame = np.full(len(vkeys), np.iinfo(np.int64).max)
     np.minimum.at(first_frame, inv_pairs.ravel(), pairs[:, 3])
@@ -83,7 +109,7 @@ def _changed_surfaces(views: list[FrameView], cfg: PartConfig, nearer: bool) -> 
     times = np.array([v.timestamp_s for v in views], dtype=np.float64)
     if not (np.all(np.isfinite(times)) and np.all(np.diff(times) > 0)):
         times = np.arange(len(views)) / 15.0
-    labels = _split_by_onset(centres, times[good_first], cfg)
+    labels = _split_by_onset(centres, times[good_first], cfg, min_voxels)
     # Map each vanished point to its voxel's cluster label.
     lut = {tuple(k): i for i, k in enumerate(good_keys)}
     pk = np.floor(points_all / vox).astype(np.int64)
@@ -91,7 +117,7 @@ def _changed_surfaces(views: list[FrameView], cfg: PartConfig, nearer: bool) -> 
     parts = []
     for lab in range(labels.max() + 1 if len(labels) else 0):
         members = labels == lab
-        if members.sum() < cfg.min_part_voxels:
+        if members.sum() < min_voxels:
             continue
         sel = idx >= 0
         sel[sel] = labels[idx[sel]] == lab
@@ -101,6 +127,21 @@ def _changed_surfaces(views: list[FrameView], cfg: PartConfig, nearer: bool) -> 
         parts.append((np.asarray(pc.points), onset))
     parts.sort(key=lambda p: (p[1], -len(p[0])))
     return parts
+
+
+def _parallel(view: FrameView, max_deg: float, smooth_px: int = 5) -> tuple[np.ndarray, np.ndarray]:
+    """``[h, w]`` bool: pixels whose observed surface faces the same way as the canonical one
+    there, within ``max_deg`` (normals of both depth maps, averaged over ``smooth_px`` pixels:
+    depth noise tilts single-pixel normals); and the canonical surface's unit normals
+    ``[h, w, 3]`` (camera frame)."""
+    def normals(z: np.ndarray) -> np.ndarray:
+        n = np.nan_to_num(depth_normals(z, view.depth_intrinsics)).astype(np.float32)
+        n = cv2.blur(n, (smooth_px, smooth_px))
+        return n / np.maximum(np.linalg.norm(n, axis=-1, keepdims=True), 1e-6)
+
+    rendered = normals(view.rendered_depth)
+    cos = (normals(view.observed_depth) * rendered).sum(-1)
+    return cos > np.cos(np.radians(max_deg)), rendered
 
 
 def _dbscan(points: np.ndarray, eps: float, min_points: int = 4) -> np.ndarray:
@@ -123,14 +164,15 @@ def _dbscan(points: np.ndarray, eps: float, min_points: int = 4) -> np.ndarray:
     return np.where(labels >= 0, labels_dense - (labels < 0).any(), -1)
 
 
-def _split_by_onset(centres: np.ndarray, onset_s: np.ndarray, cfg: PartConfig) -> np.ndarray:
+def _split_by_onset(centres: np.ndarray, onset_s: np.ndarray, cfg: PartConfig, min_voxels: int) -> np.ndarray:
     """``[V]`` part label per vanished voxel (-1 noise): space clusters split where onsets differ.
 
     Two parts side by side (a door above a drawer, a divider of a couple of centimetres between
     them) leave one connected vanished surface, but they open at different times. Clustering in
     space and onset time (``onset_m_per_s`` apart per second) separates them; the onset of a
     voxel only seen late (hidden by the hand, out of view) can lag its part's, so voxels of such
-    small spatio-temporal clusters go to the nearest large cluster of their space cluster.
+    small spatio-temporal clusters go to the nearest large cluster of their space cluster
+    (large: ``min_voxels``).
     """
     labels = _dbscan(centres, cfg.cluster_eps_m)
     if cfg.onset_m_per_s <= 0 or len(labels) == 0:
@@ -139,12 +181,12 @@ def _split_by_onset(centres: np.ndarray, onset_s: np.ndarray, cfg: PartConfig) -
     next_label = 0
     for lab in range(labels.max() + 1):
         members = np.nonzero(labels == lab)[0]
-        if len(members) < cfg.min_part_voxels:
+        if len(members) < min_voxels:
             continue
         st = np.concatenate([centres[members], cfg.onset_m_per_s * onset_s[members, None]], 1)
         sub = _dbscan(st, cfg.cluster_eps_m)
         sizes = np.bincount(sub[sub >= 0], minlength=1)
-        seeds = [i for i in range(len(sizes)) if sizes[i] >= cfg.min_part_voxels]
+        seeds = [i for i in range(len(sizes)) if sizes[i] >= min_voxels]
         if len(seeds) <= 1:
             out[members] = next_label
             next_label += 1
