@@ -192,6 +192,8 @@ def settle_parts(
                                 f"({_own_misfits(fit)})")
         elif _joint(c).joint_type == "screw" and lab not in screws_asked:
             _reduce_screw(c, fit, cfg)
+            if _joint(c).joint_type == "screw" and (depth := (depth_joints or {}).get(lab)) is not None:
+                _stand_in_for_screw(c, fit, depth, earlier_by_label.get(lab), cfg, dynamic, masks, c_from_s)
     # A piece of a bigger part fitted with a joint of its own (a strip along a door's edge): merged
     # when the bigger neighbour's motion explains its depth too. One joint explains both; two would
     # export a spurious link. Smallest first, into a neighbour with more tracks that is still kept.
@@ -277,6 +279,25 @@ def _reduce_screw(c: _Candidate, fit: tuple[float, float], cfg: SettleConfig) ->
     c.reduced = (f"kept as a {simpler.joint_type} joint: its depth explains that ({1e3 * moving:.0f} mm from its closed "
                  f"surface moved back by it) about as well as the screw fitted to its {c.tracks} tracks "
                  f"({1e3 * fit[0]:.0f} mm; a screw is kept only below {cfg.screw_keep_ratio:g} of the simpler joint's)")
+
+
+def _stand_in_for_screw(
+    c: _Candidate, fit: tuple[float, float], depth: Joint, earlier: PartFate | None, cfg: SettleConfig,
+    dynamic: Capture, masks: MaskSequence, c_from_s: np.ndarray,
+) -> None:
+    """Replace ``c``'s screw (its misfits ``fit``), which nobody asked for and neither its slide
+    nor its turn explains, by the part finder's joint ``depth`` (:func:`_stand_in`) where that
+    explains ``c``'s depth better by ``screw_keep_ratio``. Tracks on a door that the hand
+    pulling a drawer below it crosses mix the two parts' motions into a screw."""
+    screw = c.joint
+    _stand_in(c, depth, earlier, cfg, dynamic, masks, c_from_s)
+    own = None if c.joint is screw else _misfits(c, _joint(c), cfg)
+    if own is None or fit[0] < cfg.screw_keep_ratio * own[0]:
+        c.joint, c.from_depth = screw, ""
+        return
+    c.from_depth = (f"neither the slide nor the turn of the screw fitted to its {c.tracks} tracks explains its depth "
+                    f"({_own_misfits(fit)} under the screw); the part finder's {depth.joint_type} joint, fitted to its "
+                    f"change in depth, explains it better: {_own_misfits(own)}")
 
 
 def _own_misfits(fit: tuple[float, float]) -> str:
