@@ -259,3 +259,25 @@ def test_tracks_cannot_keep_what_the_part_finder_saw_hardly_move(drawer):
     fates = {f.candidate: f for f in decision.fates}
     assert decision.kept_labels == (1,), decision.fates
     assert fates[2].fate == "dropped" and "the part finder's fit to its change in depth moves it by only 5 mm" in fates[2].reason
+
+
+def test_a_screw_neither_reduction_explains_gives_way_to_the_part_finders_joint(scene):
+    """Generalization seed 2: once the drawer below its door was found, the door's tracks (the
+    hand pulling the drawer crosses them) gave a screw tilted 45 deg, 258 mm from its closed
+    surface moved back by it; neither its slide nor its turn explains the depth. The part
+    finder's hinge (29 mm) replaces it, its line refitted to the face planes."""
+    truth = scene.truth
+    door = truth.joints[0]
+    masks = _candidates(scene)
+    tilt = np.radians(30.0)
+    axis = np.sign(door.axis[1]) * np.array([0.0, np.cos(tilt), np.sin(tilt)])
+    screw = replace(door, joint_type="screw", axis=axis, pitch=0.05)
+    decision = settle_parts(scene.dynamic, masks, truth.canonical_from_dynamic_session, {1: screw}, tracks={1: 400},
+                            depth_joints={1: door})
+    assert decision.kept_labels == (1,), decision.fates
+    joint = decision.replaced[1]
+    assert joint.joint_type == "revolute" and np.degrees(np.arccos(abs(joint.axis @ door.axis))) < 0.5, joint.axis
+    assert "explains it better" in decision.fates[0].reason, decision.fates[0]
+    # Without the part finder's joint the screw stays what the tracks said.
+    alone = settle_parts(scene.dynamic, masks, truth.canonical_from_dynamic_session, {1: screw}, tracks={1: 400})
+    assert alone.kept_labels == (1,) and alone.replaced == {}, alone.fates
