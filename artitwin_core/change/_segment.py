@@ -297,12 +297,23 @@ def segment_parts(
     cfg = config or PartConfig()
     views = frame_views(dynamic, np.asarray(canonical_from_session, dtype=np.float64), mesh)
     models, kept, fates = screen_candidates(views, None, gravity=gravity, mesh=mesh, config=cfg)
+    first = max([*kept, *(f.candidate for f in fates)], default=-1) + 1
+    if len(models) > 1 and models[0].hidden:
+        # A front pulled out hides more than its own closed place: behind it, a wall facing its
+        # way, which a second hidden "part" slides out of. Only the first is kept here; the
+        # look below, outside its labels, sees what the others are.
+        later = set(kept[1:])
+        fates = [replace(f, fate="dropped", into=None, reason=f"merged into candidate {f.into}, itself dropped below")
+                 if f.fate == "merged" and f.into in later else f for f in fates]
+        fates += [PartFate(candidate=k, fate="dropped", stage="part_masks",
+                           reason=f"hidden surface found after candidate {kept[0]}'s: looked at again where that part's "
+                           f"labels do not explain it (candidates from {first} on)") for k in kept[1:]]
+        models, kept = models[:1], kept[:1]
     seg = propagate_masks_backwards(models, views, dynamic, mesh, cfg)
-    if models and not models[0].hidden and cfg.min_occluded_frames > 0:
+    if models and cfg.min_occluded_frames > 0:
         # A drawer pulled straight at the camera hides its front and leaves nothing vanished,
         # whatever else vanished beside it (a door above it): what the parts found do not
         # explain of the hidden surface is screened too.
-        first = max([*kept, *(f.candidate for f in fates)]) + 1
         more, more_kept, more_fates = _screen_unexplained_hidden(seg, views, first, gravity, mesh, cfg)
         fates += more_fates
         if more:
