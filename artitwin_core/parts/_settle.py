@@ -193,7 +193,7 @@ def settle_parts(
         elif _joint(c).joint_type == "screw" and lab not in screws_asked:
             _reduce_screw(c, fit, cfg)
             if _joint(c).joint_type == "screw" and (depth := (depth_joints or {}).get(lab)) is not None:
-                _stand_in_for_screw(c, fit, depth, earlier_by_label.get(lab), cfg, dynamic, masks, c_from_s)
+                _stand_in_for_screw(c, fit, depth, cfg, dynamic, masks, c_from_s)
     # A piece of a bigger part fitted with a joint of its own (a strip along a door's edge): merged
     # when the bigger neighbour's motion explains its depth too. One joint explains both; two would
     # export a spurious link. Smallest first, into a neighbour with more tracks that is still kept.
@@ -223,37 +223,48 @@ def _stand_in(
     c: _Candidate, depth: Joint, earlier: PartFate | None, cfg: SettleConfig, dynamic: Capture, masks: MaskSequence,
     c_from_s: np.ndarray,
 ) -> None:
-    """Give ``c`` (no joint from its tracks, or a fixed one) the part finder's joint ``depth``, its
-    states refitted to ``c``'s depth, where that depth confirms it; the tests of
-    :func:`settle_parts` then treat it like any fitted joint. A door's line must be confirmed by
-    its face planes too: its states are free per frame, so a line on the wrong edge of the door
-    can still move its depth back near its closed surface."""
-    if depth.joint_type == "fixed" or c.depth_px < cfg.min_depth_points:
+    """Give ``c`` (no joint from its tracks, or a fixed one) the part finder's joint ``depth``
+    where :func:`_confirmed_depth_joint` finds ``c``'s depth confirms it; the tests of
+    :func:`settle_parts` then treat it like any fitted joint."""
+    found = _confirmed_depth_joint(c, depth, cfg, dynamic, masks, c_from_s)
+    if found is None:
         return
-    rotates = depth.joint_type in ("revolute", "screw")
+    why = _no_joint_reason(c, earlier)  # of the tracks' joint: before it is replaced
+    c.joint, fit = found
+    c.from_depth = (f"{why}; the part finder's {depth.joint_type} joint, fitted to its change in depth, stands in"
+                    f"{' (its line refitted to its face planes)' if depth.joint_type in ('revolute', 'screw') else ''}: its depth confirms it "
+                    f"({_own_misfits(fit)})")
+
+
+def _confirmed_depth_joint(
+    c: _Candidate, depth: Joint, cfg: SettleConfig, dynamic: Capture, masks: MaskSequence, c_from_s: np.ndarray
+) -> tuple[Joint, tuple[float, float]] | None:
+    """The part finder's joint ``depth`` with its states refitted to ``c``'s depth, and its
+    misfits there (:func:`_misfits`), where that depth confirms it; else None, with why in
+    ``c.refused``. A door's line must be confirmed by its face planes too: its states are free
+    per frame, so a line on the wrong edge of the door can still move its depth back near its
+    closed surface."""
+    if depth.joint_type == "fixed" or c.depth_px < cfg.min_depth_points:
+        return None
     line = StateRefineConfig(
         rest_rad=max(StateRefineConfig.rest_rad, cfg.stand_in_rest_frac * _span(depth)),
         axis_max_shift_m=cfg.stand_in_max_shift_m, axis_max_change_rad=float(np.radians(cfg.stand_in_max_turn_deg)),
     )  # fmt: skip
     try:
         joint = refine_joint_states(depth, dynamic, masks, c.label, c_from_s, line)
-    except Exception as e:  # noqa: BLE001 (no stand-in; the candidate is settled without a joint, saying why)
+    except Exception as e:  # noqa: BLE001 (no stand-in; the candidate is settled without it, saying why)
         c.refused = f"the part finder's {depth.joint_type} joint could not be refitted to its depth ({type(e).__name__}: {e})"
-        return
-    if rotates and joint.axis_se_rad is None:
+        return None
+    if depth.joint_type in ("revolute", "screw") and joint.axis_se_rad is None:
         c.refused = (f"the part finder's {depth.joint_type} joint was not taken: its face planes do not confirm its line "
                      "(too few turned frames showing one plane, or none closed)")
-        return
+        return None
     fit = _misfits(c, joint, cfg)
     if fit is None or not _confirms(fit, cfg):
         told = "no frame moves it enough to tell" if fit is None else _own_misfits(fit)
         c.refused = f"the part finder's {depth.joint_type} joint was not taken: its depth does not confirm it ({told})"
-        return
-    why = _no_joint_reason(c, earlier)
-    c.joint = joint
-    c.from_depth = (f"{why}; the part finder's {depth.joint_type} joint, fitted to its change in depth, stands in"
-                    f"{' (its line refitted to its face planes)' if rotates else ''}: its depth confirms it "
-                    f"({_own_misfits(fit)})")
+        return None
+    return joint, fit
 
 
 def _reduce_screw(c: _Candidate, fit: tuple[float, float], cfg: SettleConfig) -> None:
@@ -282,19 +293,17 @@ def _reduce_screw(c: _Candidate, fit: tuple[float, float], cfg: SettleConfig) ->
 
 
 def _stand_in_for_screw(
-    c: _Candidate, fit: tuple[float, float], depth: Joint, earlier: PartFate | None, cfg: SettleConfig,
-    dynamic: Capture, masks: MaskSequence, c_from_s: np.ndarray,
+    c: _Candidate, fit: tuple[float, float], depth: Joint, cfg: SettleConfig, dynamic: Capture, masks: MaskSequence,
+    c_from_s: np.ndarray,
 ) -> None:
     """Replace ``c``'s screw (its misfits ``fit``), which nobody asked for and neither its slide
-    nor its turn explains, by the part finder's joint ``depth`` (:func:`_stand_in`) where that
-    explains ``c``'s depth better by ``screw_keep_ratio``. Tracks on a door that the hand
-    pulling a drawer below it crosses mix the two parts' motions into a screw."""
-    screw = c.joint
-    _stand_in(c, depth, earlier, cfg, dynamic, masks, c_from_s)
-    own = None if c.joint is screw else _misfits(c, _joint(c), cfg)
-    if own is None or fit[0] < cfg.screw_keep_ratio * own[0]:
-        c.joint, c.from_depth = screw, ""
+    nor its turn explains, by the part finder's joint ``depth`` (:func:`_confirmed_depth_joint`)
+    where that explains ``c``'s depth better by ``screw_keep_ratio``. Tracks on a door that the
+    hand pulling a drawer below it crosses mix the two parts' motions into a screw."""
+    found = _confirmed_depth_joint(c, depth, cfg, dynamic, masks, c_from_s)
+    if found is None or fit[0] < cfg.screw_keep_ratio * found[1][0]:
         return
+    c.joint, own = found
     c.from_depth = (f"neither the slide nor the turn of the screw fitted to its {c.tracks} tracks explains its depth "
                     f"({_own_misfits(fit)} under the screw); the part finder's {depth.joint_type} joint, fitted to its "
                     f"change in depth, explains it better: {_own_misfits(own)}")
