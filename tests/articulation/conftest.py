@@ -6,6 +6,8 @@ stage alone; the canonical model is trained for a few steps at the true static p
 
 from __future__ import annotations
 
+import os
+
 import numpy as np
 import pytest
 import torch
@@ -28,8 +30,8 @@ CANONICAL_STEPS = 60
 
 
 @pytest.fixture(scope="session", autouse=True)
-def _two_threads():
-    torch.set_num_threads(2)
+def _torch_threads():
+    torch.set_num_threads(int(os.environ.get("OMP_NUM_THREADS", "2")))  # a share of the cores: tests/conftest.py
 
 
 @pytest.fixture(scope="session")

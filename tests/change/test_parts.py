@@ -117,6 +117,7 @@ def test_sam2_backend_without_package_is_a_clear_input_error(tmp_path, monkeypat
         propagate_masks_sam2(np.zeros((3, 8, 8), np.uint8), np.zeros((8, 8), np.uint8), ckpt)
 
 
+@pytest.mark.slow
 def test_door_seen_edge_on_at_the_end_is_fitted_where_it_is_seen():
     """"strong-hand-occlusion" drawn at seed 105: the door swings past the camera's line of
     sight, so the last frames show only its edge. Fitted there (the last frame and the two most

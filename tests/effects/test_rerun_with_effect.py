@@ -51,6 +51,7 @@ def _static(report: DiagnosisReport, name: str):
     return next(f for f in report.findings if f.scope == STATIC and f.name == name)
 
 
+@pytest.mark.slow
 def test_diagnosis_names_the_injected_effect_first(two_runs):
     _, store, a, _ = two_runs
     report = store.get(a["diagnose"].key, DiagnosisReport)

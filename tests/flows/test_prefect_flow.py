@@ -58,6 +58,7 @@ def test_bad_input_fails_fast_without_retries(tmp_path, folder):
     assert CALLS["toy_measure"] == 1
 
 
+@pytest.mark.slow
 def test_scene_flow_writes_summary_and_reruns_from_cache(tmp_path, tiny_scene):
     store = str(tmp_path / "store")
     out = tmp_path / "out"

@@ -42,6 +42,7 @@ def _free_window(free: np.ndarray, size: int) -> tuple[int, int]:
     raise AssertionError("no free window")
 
 
+@pytest.mark.slow
 def test_untrackable_and_depthless_candidates_are_dropped_not_exported(tiny_scene, store, tmp_path, monkeypatch):
     import tasks.register as register
 
@@ -105,6 +106,7 @@ def test_a_failed_stage_leaves_a_summary_and_the_static_diagnosis(tiny_scene, st
     assert "diagnosis.html" in summary["exports"]
 
 
+@pytest.mark.slow
 def test_a_scene_where_nothing_moved_ends_with_a_static_twin(tiny_scene, store, tmp_path):
     """The static recording given twice (one AR session: the registration is the identity)."""
     import shutil

@@ -18,6 +18,7 @@ ROOT = pathlib.Path(__file__).resolve().parents[2]
 CHECKED = ["artitwin_core/joints", "artitwin_core/parts", "artitwin_core/geometry"]
 
 
+@pytest.mark.slow
 def test_the_checked_packages_have_no_type_errors(tmp_path_factory):
     cache = tmp_path_factory.getbasetemp().parent / "mypy-cache"
     stdout, stderr, status = api.run(

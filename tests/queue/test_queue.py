@@ -11,6 +11,7 @@ import time
 import uuid
 from pathlib import Path
 
+import pytest
 from typer.testing import CliRunner
 
 from infra.deploy import QUEUES, requeue, submit_nightly, submit_scene, wait_for_runs
@@ -86,6 +87,7 @@ def test_pool_queues_serve_interactive_first_and_limit_nightly(cluster):
     assert got["interactive"].priority < got["nightly"].priority  # lower number = served first
 
 
+@pytest.mark.slow
 def test_three_scenes_transient_retried_bad_capture_fails_fast(cluster, scenes, tmp_path):
     store = str(tmp_path / "store")
     flaky = _fault(cluster, "alpha-flaky", stage="ingest", label="static", path_contains=str(scenes["alpha"]), action="transient")
@@ -134,6 +136,7 @@ def test_three_scenes_transient_retried_bad_capture_fails_fast(cluster, scenes, 
     assert "2/3 scene(s) up to date" in result.output
 
 
+@pytest.mark.slow
 def test_interactive_run_overtakes_queued_nightly_run(cluster, scenes, tmp_path):
     """With one slot in the pool, a run queued on ``nightly`` first still starts after one
     queued on ``interactive`` later."""
@@ -158,6 +161,7 @@ def test_interactive_run_overtakes_queued_nightly_run(cluster, scenes, tmp_path)
     assert i.start_time < n.start_time and i.end_time <= n.start_time  # served first, one at a time
 
 
+@pytest.mark.slow
 def test_nightly_twice_without_change_recomputes_nothing(cluster, scenes, tmp_path):
     import shutil
 
@@ -207,6 +211,7 @@ def test_same_scene_twice_at_once_computes_each_stage_once(cluster, scenes, tmp_
         assert len(st.backend.listdir(f"objects/{key}")) == 1  # one object written per stage
 
 
+@pytest.mark.slow
 def test_sigkilled_worker_run_resumes_from_store_with_equal_artifacts(cluster, scenes, tmp_path):
     from flows import InlineExecutor
     from flows.nightly import scene_plan, select_pipeline

@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import os
+
 import numpy as np
 import pytest
 import torch
@@ -10,8 +12,8 @@ from artitwin_core.synth import BENCHMARK_SCENES, generate_scene, render_state
 
 
 @pytest.fixture(scope="session", autouse=True)
-def _two_threads():
-    torch.set_num_threads(2)
+def _torch_threads():
+    torch.set_num_threads(int(os.environ.get("OMP_NUM_THREADS", "2")))  # a share of the cores: tests/conftest.py
 
 
 @pytest.fixture(scope="session")

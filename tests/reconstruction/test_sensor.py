@@ -100,6 +100,7 @@ def biased_scene():
     return generate_scene(spec)
 
 
+@pytest.mark.slow
 def test_training_recovers_injected_vignetting_and_depth_bias(biased_scene):
     cap = biased_scene.static
     train_f, test_f = split_frames(cap.num_frames, 4)

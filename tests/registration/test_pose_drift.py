@@ -135,6 +135,7 @@ def dynamic_fit(drifting):
     return reg.canonical_from_session, masks, mesh, s, fit
 
 
+@pytest.mark.slow
 def test_dynamic_drift_is_fitted_against_the_canonical_model(drifting, dynamic_fit):
     c, _, _, _, fit = dynamic_fit
     d, truth = drifting.dynamic, drifting.truth
@@ -162,6 +163,7 @@ def test_session_drift_input_errors_are_named(drifting, dynamic_fit):
         estimate_session_drift(drifting.dynamic, c, mesh, np.ones_like(masks.part), masks.hand, s)
 
 
+@pytest.mark.slow
 def test_a_trend_the_halves_disagree_on_is_not_applied():
     """high-noise has no drift, but its jittering poses and noisy canonical model fake a 1 cm trend
     with a small jackknife error (z 7.5); the two halves of the recording fit trends 5 times

@@ -102,6 +102,7 @@ def test_strong_hand_occlusion_does_not_slide_along_the_front():
     assert _error_over_se(r, truth, np.array([0.0, spec.size_m[1] / 2, 0.0])) < 3.0
 
 
+@pytest.mark.slow
 def test_noisy_depth_gets_normals_wide_enough():
     """The benchmark's high-noise scene (3x depth noise, pose jitter, exposure) with fewer frames.
 
