@@ -137,7 +137,8 @@ run_tests() {  # $1: tag, rest: test files
   local tag=$1; shift
   [ -f "$STASH/tests_$tag.passed" ] && { log "gpu tests $tag passed in an earlier call"; return; }
   log "gpu tests $tag: $*"
-  if "$PY" -m pytest -q -m gpu -p no:cacheprovider "$@" 2>&1 | tee "$OUT/tests_$tag.log" | tail -3; then
+  # No pytest-xdist there: pyproject's addopts (-n 2) would be an unknown option.
+  if "$PY" -m pytest -q -m gpu -p no:cacheprovider -o addopts="-ra --strict-markers" "$@" 2>&1 | tee "$OUT/tests_$tag.log" | tail -3; then
     grep -q " passed" "$OUT/tests_$tag.log" && ! grep -qE " (failed|error)" "$OUT/tests_$tag.log" && touch "$STASH/tests_$tag.passed"
   fi
 }
