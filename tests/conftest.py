@@ -42,5 +42,4 @@ def pytest_collection_modifyitems(items):
     slow: dict[str, int] = {}
     for item in items:
         slow[file_of(item)] = slow.get(file_of(item), 0) + ("slow" in item.keywords)
-    order = {f: i for i, f in enumerate(slow)}  # collection order among equals
-    items.sort(key=lambda item: (-slow[file_of(item)], order[file_of(item)]))
+    items.sort(key=lambda item: -slow[file_of(item)])  # stable: collection order among equals
