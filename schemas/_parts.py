@@ -101,6 +101,11 @@ class PartStageConfig(StageConfig):
         description="What grows onto a drawer lies inside its front's outline seen along the slide, or at most this far "
         "outside it, metres; None: anywhere.",
     )
+    max_outline_drift: float = Field(
+        default=0.2, ge=0,
+        description="A drawer's outline drifting in its front's plane by more than this (metres per metre of travel) is not "
+        "taken as its slide's direction: a sagging drawer tilts by a few degrees.",
+    )
     front_plane_tol_m: float = Field(default=0.01, ge=0, description="The observed front, moved back, lies this close to the front's plane, metres.")
     front_clear_m: float = Field(
         default=0.05, ge=0,

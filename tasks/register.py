@@ -91,7 +91,7 @@ def register_dynamic(static: CaptureArtifact, dynamic: CaptureArtifact, config: 
     )
 
 
-@stage(name="part_masks", version=16, config=PartMasksConfig, output=MaskSequenceArtifact)
+@stage(name="part_masks", version=17, config=PartMasksConfig, output=MaskSequenceArtifact)
 def label_parts(
     static: CaptureArtifact,
     static_poses: CameraPoses,

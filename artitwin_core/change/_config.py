@@ -112,6 +112,10 @@ class PartConfig:
             outline from the reference frame, where the whole front stands clear of the carcass
             (:func:`_front_seen_open`), and fills the upright rectangle it spans; the fill then
             does not reach past it. It raised every measured drawer's IoU (docs/accuracy.md).
+        max_outline_drift: a drawer's outline drifting in its front's plane by more than this
+            (metres per metre of travel; 0.2 is 11 deg) is not taken as its slide's direction
+            (:func:`_slide_from_outline`): a drawer that sags tilts its slide by a few degrees,
+            and an outline that moves more is one the hand or the frames' few clear edges got wrong.
         front_plane_tol_m: the observed front, moved back, lies this close to the front's plane.
         door_slab_m: what grows onto a door lies at most this far behind its front (metres).
         drawer_footprint_m: what grows onto a drawer lies inside its front's outline seen along
@@ -188,6 +192,7 @@ class PartConfig:
     host_reach_m: float = 0.03
     host_min_support_frac: float = 0.5
     drawer_footprint_m: float | None = 0.02
+    max_outline_drift: float = 0.2
     front_plane_tol_m: float = 0.01
     front_clear_m: float = 0.05
     see_through_m: float = 0.05

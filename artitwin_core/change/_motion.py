@@ -266,7 +266,12 @@ def _fit_at(
         for dist in cfg.icp_distances_m:
             init = _icp_point_to_plane(closed_points, tgt_pts, tgt_nrm, tgt_tree, init, dist)
         jt, axis, pivot, q = _joint_from_motion(init, closed_points.mean(0))
-        if jt == "prismatic":
+        if jt != "prismatic" and cfg.max_rotation_rad <= 0.0:
+            # Slides only (hidden surface): ICP's turn is a slide whose front it tilted; its
+            # travel is the samples' centre's along the front's normal.
+            centre = closed_points.mean(0)
+            jt, axis, q = "prismatic", normal, float((init[:3, :3] @ centre + init[:3, 3] - centre) @ normal)
+        elif jt == "prismatic":
             # A drawer slides along its front's normal. ICP slides a flat front freely in its own
             # plane (only its rim and handle hold it there), degrees off the normal and
             # centimetres sideways.
@@ -457,7 +462,9 @@ def _slide_from_outline(
             den += float((q - q.mean()) @ (q - q.mean()))
         if den > 0:
             drift[a] = num / den
-    if not drift.any():
+    if not drift.any() or np.linalg.norm(drift) > cfg.max_outline_drift:
+        # Beyond a sagging drawer's few degrees the outline did not follow the front: a hand
+        # over its edge, or edges seen clear in too few frames.
         return model
     axis = n + drift[0] * e1 + drift[1] * e2
     # Same travel along the normal at the reference state.
