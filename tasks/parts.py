@@ -32,7 +32,7 @@ from tasks._stage import stage
 config_map(SettlePartsConfig, {SettleConfig: " ".join(SettlePartsConfig.model_fields)})  # every field, by its name
 
 
-@stage(name="settle_parts", version=5, config=SettlePartsConfig, output=JointSet)
+@stage(name="settle_parts", version=6, config=SettlePartsConfig, output=JointSet)
 def settle_candidate_parts(
     joints: JointSet,
     trajectories: TrajectoriesArtifact,

@@ -178,18 +178,25 @@ def settle_parts(
     for lab in list(kept):
         c = cands[lab]
         fit = _misfits(c, _joint(c), cfg)
+        refuted = ""
         if fit is None:
             # Its motion never carries its points min_discrimination_m beyond where it sits closed
             # in a frame with depth: nothing confirms it moves (a piece of the arm beside a part,
             # fitted a small turn about its own corner).
-            kept.remove(lab)
-            unconfirmed[lab] = (f"the {_joint(c).joint_type} joint fitted to its {c.tracks} tracks never moves its points "
-                                f"{1e3 * cfg.min_discrimination_m:.0f} mm beyond where they sit closed in a frame with depth, "
-                                "so its depth cannot confirm it")
+            refuted = (f"the {_joint(c).joint_type} joint fitted to its {c.tracks} tracks never moves its points "
+                       f"{1e3 * cfg.min_discrimination_m:.0f} mm beyond where they sit closed in a frame with depth, "
+                       "so its depth cannot confirm it")
         elif not _confirms(fit, cfg):
-            kept.remove(lab)
-            unconfirmed[lab] = (f"its depth does not confirm the {_joint(c).joint_type} joint fitted to its {c.tracks} tracks "
-                                f"({_own_misfits(fit)})")
+            refuted = f"its depth does not confirm the {_joint(c).joint_type} joint fitted to its {c.tracks} tracks ({_own_misfits(fit)})"
+        if refuted:
+            # Tracks that the hand drags over a part, or that stick to the static edges around it,
+            # can fit a joint its depth refutes; the part finder's joint, fitted to that depth,
+            # stands in where the depth confirms it, as for a part whose tracks saw no motion.
+            if not c.from_depth and (depth := (depth_joints or {}).get(lab)) is not None:
+                _stand_in(c, depth, None, cfg, dynamic, masks, c_from_s, refuted)
+            if not c.from_depth:
+                kept.remove(lab)
+                unconfirmed[lab] = refuted
         elif _joint(c).joint_type == "screw" and lab not in screws_asked:
             _reduce_screw(c, fit, cfg)
             if _joint(c).joint_type == "screw" and (depth := (depth_joints or {}).get(lab)) is not None:
@@ -221,15 +228,15 @@ def settle_parts(
 
 def _stand_in(
     c: _Candidate, depth: Joint, earlier: PartFate | None, cfg: SettleConfig, dynamic: Capture, masks: MaskSequence,
-    c_from_s: np.ndarray,
+    c_from_s: np.ndarray, why: str = "",
 ) -> None:
-    """Give ``c`` (no joint from its tracks, or a fixed one) the part finder's joint ``depth``
-    where :func:`_confirmed_depth_joint` finds ``c``'s depth confirms it; the tests of
-    :func:`settle_parts` then treat it like any fitted joint."""
+    """Give ``c`` (no joint from its tracks, a fixed one, or one its depth refutes: ``why``) the
+    part finder's joint ``depth`` where :func:`_confirmed_depth_joint` finds ``c``'s depth
+    confirms it; the tests of :func:`settle_parts` then treat it like any fitted joint."""
     found = _confirmed_depth_joint(c, depth, cfg, dynamic, masks, c_from_s)
     if found is None:
         return
-    why = _no_joint_reason(c, earlier)  # of the tracks' joint: before it is replaced
+    why = why or _no_joint_reason(c, earlier)  # of the tracks' joint: before it is replaced
     c.joint, fit = found
     c.from_depth = (f"{why}; the part finder's {depth.joint_type} joint, fitted to its change in depth, stands in"
                     f"{' (its line refitted to its face planes)' if depth.joint_type in ('revolute', 'screw') else ''}: its depth confirms it "
