@@ -180,6 +180,33 @@ def test_the_part_finders_joint_stands_in_where_the_tracks_saw_no_motion(drawer)
     assert decision.kept_labels == (1,) and decision.from_depth == () and decision.replaced == {}
 
 
+def test_the_part_finders_joint_stands_in_where_the_tracks_joint_is_refuted(drawer):
+    """Tracks a hand drags across a drawer can fit a joint its depth refutes (generalization
+    seed 8: a turn, 67 mm from its closed surface moved back, 4 mm held still), and the drawer was
+    dropped although the part finder's slide, fitted to that depth, explains it. That slide now
+    stands in, as for tracks that saw no motion; offered to a ring of static surface whose tracks'
+    joint is refuted too, it is not confirmed there, and the ring is still dropped."""
+    scene = drawer
+    masks = _candidates(scene)
+    truth = scene.truth
+    slide = truth.joints[0]
+    span = float(np.max(np.abs(slide.q)))
+    in_plane = replace(slide, joint_type="revolute", axis=np.array([0.0, 0.0, 1.0]),
+                       pivot=np.array([0.0, 0.3, 0.0]), q=0.5 * np.asarray(slide.q) / span)
+    elsewhere = replace(in_plane, pivot=np.array([0.0, -0.3, 0.0]))  # not the drawer's joint: no twin to merge with
+    decision = settle_parts(scene.dynamic, masks, truth.canonical_from_dynamic_session, {1: in_plane, 3: elsewhere},
+                            tracks={1: 400, 3: 60}, depth_joints={1: slide, 3: slide})
+    fates = {f.candidate: f for f in decision.fates}
+    assert decision.kept_labels == (1,) and decision.from_depth == (1,), decision.fates
+    assert decision.replaced[1].joint_type == "prismatic"
+    assert "does not confirm the revolute joint" in fates[0].reason and "stands in" in fates[0].reason, fates[0]
+    assert (fates[1].fate, fates[1].part) == ("merged", 0), fates[1]
+    assert fates[2].fate == "dropped" and "does not confirm" in fates[2].reason and "stands in" not in fates[2].reason, fates[2]
+    # Without the part finder's joint, the refuted drawer is dropped as before.
+    alone = settle_parts(scene.dynamic, masks, truth.canonical_from_dynamic_session, {1: in_plane}, tracks={1: 400})
+    assert alone.kept_labels == (), alone.fates
+
+
 def test_a_stand_in_doors_line_comes_from_its_face_planes(scene):
     """The part finder's line for a door may sit on the wrong edge (generalization seed 8: 46 cm
     off), and with states free per frame its depth can still look confirmed. A door kept on that
