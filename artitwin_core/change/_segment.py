@@ -130,7 +130,7 @@ def screen_candidates(
     vanished = find_moved_parts(views, cfg)
     models, kept, fates = _screen(vanished, 0, views, frame, gravity, mesh, cfg, hidden=False)
     if not models:
-        hidden = find_moved_parts(views, cfg, hidden=True)
+        hidden = find_moved_parts(views, cfg, hidden=True, mesh=mesh)
         models, kept, more = _screen(hidden, len(vanished), views, frame, gravity, mesh, cfg, hidden=True)
         fates += more
     return models, kept, fates
@@ -336,5 +336,5 @@ def _screen_unexplained_hidden(
         cv2.resize(cv2.dilate((np.asarray(p) > 0).astype(np.uint8), kernel), (w, h), interpolation=cv2.INTER_AREA) > 0
         for p in seg.masks.part
     ]
-    hidden = find_moved_parts(views, cfg, hidden=True, explained=explained)
+    hidden = find_moved_parts(views, cfg, hidden=True, explained=explained, mesh=mesh)
     return _screen(hidden, first, views, None, gravity, mesh, cfg, hidden=True, earlier=seg.models)

@@ -14,6 +14,7 @@ from scipy.sparse import coo_matrix
 from scipy.sparse.csgraph import connected_components
 from scipy.spatial import cKDTree
 
+from artitwin_core.change._canonical import CanonicalMesh
 from artitwin_core.change._config import PartConfig
 from artitwin_core.change._detect import depth_tolerance
 from artitwin_core.change._views import FrameView, _to_world
@@ -22,7 +23,7 @@ from artitwin_core.geometry import depth_normals, unique_rows
 
 def find_moved_parts(
     views: list[FrameView], config: PartConfig | None = None, *, hidden: bool = False,
-    explained: list[np.ndarray] | None = None,
+    explained: list[np.ndarray] | None = None, mesh: CanonicalMesh | None = None,
 ) -> list[tuple[np.ndarray, int]]:
     """Closed surfaces of the parts that moved: canonical surface seen vanished in several frames;
     with ``hidden``, canonical surface hidden by something nearer in several frames
@@ -33,7 +34,10 @@ def find_moved_parts(
     hidden one. Only surface hidden by a nearer one facing its way counts
     (``hidden_parallel_deg``: a hand, an arm or a turned door hides surface at an angle), and it
     is taken where the nearer surface, moved back along the hidden one's normal, meets it: the
-    front's closed place. These are candidates of last resort: :func:`screen_candidates` turns
+    front's closed place. With the canonical ``mesh``, a nearer surface seen over another one (a
+    front pulled out past its closed outline, seen over the floor or the carcass's side) is moved
+    back along its own normal to the first canonical surface there, and counts where that surface
+    faces its way. These are candidates of last resort: :func:`screen_candidates` turns
     to them when no vanished one is explained by a motion, :func:`segment_parts` where the parts
     found do not explain them (``explained``).
 
@@ -47,12 +51,13 @@ def find_moved_parts(
     """
     cfg = config or PartConfig()
     if hidden:
-        return _changed_surfaces(views, cfg, True, explained) if cfg.min_occluded_frames > 0 else []
+        return _changed_surfaces(views, cfg, True, explained, mesh) if cfg.min_occluded_frames > 0 else []
     return _changed_surfaces(views, cfg, False, explained)
 
 
 def _changed_surfaces(
-    views: list[FrameView], cfg: PartConfig, nearer: bool, explained: list[np.ndarray] | None = None
+    views: list[FrameView], cfg: PartConfig, nearer: bool, explained: list[np.ndarray] | None = None,
+    mesh: CanonicalMesh | None = None,
 ) -> list[tuple[np.ndarray, int]]:
     """:func:`find_moved_parts` for canonical surface seen vanished (observed farther than
     rendered), or with ``nearer``, hidden by something nearer."""
@@ -69,15 +74,17 @@ def _changed_surfaces(
             # the votes over frames and the cluster size reject the edge noise instead.
             changed = cv2.morphologyEx(changed.astype(np.uint8), cv2.MORPH_OPEN, kernel).astype(bool)
         normals = None
+        beside = np.zeros_like(changed)
         if nearer and cfg.hidden_parallel_deg < 90.0:
-            parallel, normals = _parallel(v, cfg.hidden_parallel_deg)
+            parallel, normals, seen_normals = _parallel(v, cfg.hidden_parallel_deg)
+            if mesh is not None:
+                beside = changed & ~parallel
             changed &= parallel
         if explained is not None:
             changed &= ~explained[t]
-        if not changed.any():
-            continue
+            beside &= ~explained[t]
         p = _to_world(v, v.rendered_depth, changed)
-        if normals is not None:
+        if normals is not None and changed.any():
             # The nearer surface faces the hidden one's way: a front slid along its normal. Its
             # closed place is the observed point moved back along that normal onto the canonical
             # surface's plane (not the surface behind it along the ray, which an oblique view
@@ -85,6 +92,10 @@ def _changed_surfaces(
             n = normals[changed] @ v.world_from_camera[:3, :3].T
             o = _to_world(v, v.observed_depth, changed)
             p = o - n * ((o - p) * n).sum(-1, keepdims=True)
+        if beside.any():
+            p = np.concatenate([p, _moved_back_along_normal(v, beside, seen_normals, mesh, cfg)])
+        if not len(p):
+            continue
         k = np.floor(p / vox).astype(np.int64)
         keys.append(k)
         frames.append(np.full(len(k), t))
@@ -129,19 +140,41 @@ def _changed_surfaces(
     return parts
 
 
-def _parallel(view: FrameView, max_deg: float, smooth_px: int = 5) -> tuple[np.ndarray, np.ndarray]:
+def _parallel(view: FrameView, max_deg: float, smooth_px: int = 5) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """``[h, w]`` bool: pixels whose observed surface faces the same way as the canonical one
     there, within ``max_deg`` (normals of both depth maps, averaged over ``smooth_px`` pixels:
-    depth noise tilts single-pixel normals); and the canonical surface's unit normals
-    ``[h, w, 3]`` (camera frame)."""
+    depth noise tilts single-pixel normals); and the canonical and the observed surface's unit
+    normals ``[h, w, 3]`` (camera frame)."""
     def normals(z: np.ndarray) -> np.ndarray:
         n = np.nan_to_num(depth_normals(z, view.depth_intrinsics)).astype(np.float32)
         n = cv2.blur(n, (smooth_px, smooth_px))
         return n / np.maximum(np.linalg.norm(n, axis=-1, keepdims=True), 1e-6)
 
-    rendered = normals(view.rendered_depth)
-    cos = (normals(view.observed_depth) * rendered).sum(-1)
-    return cos > np.cos(np.radians(max_deg)), rendered
+    rendered, observed = normals(view.rendered_depth), normals(view.observed_depth)
+    cos = (observed * rendered).sum(-1)
+    return cos > np.cos(np.radians(max_deg)), rendered, observed
+
+
+def _moved_back_along_normal(
+    view: FrameView, pixels: np.ndarray, seen_normals: np.ndarray, mesh: CanonicalMesh, cfg: PartConfig
+) -> np.ndarray:
+    """``[N, 3]`` canonical points: the observed surface at ``pixels [h, w]`` (nearer than the
+    canonical surface along their rays, and not facing its way there) moved back along its own
+    normal (``seen_normals``, camera frame) to the first canonical surface, where that surface
+    faces the same way (``hidden_parallel_deg``), lies beyond the depth tolerance and within
+    ``max_translation_m``. A front pulled out past its closed outline is seen over the floor or
+    the carcass's side; along its normal it meets its closed place, which faces its way."""
+    o = _to_world(view, view.observed_depth, pixels)
+    n = seen_normals[pixels].astype(np.float64) @ view.world_from_camera[:3, :3].T
+    n *= np.where(((view.world_from_camera[:3, 3] - o) * n).sum(-1) < 0, -1.0, 1.0)[:, None]  # towards the camera
+    ok = np.linalg.norm(n, axis=1) > 0.5
+    o, n = o[ok], n[ok]
+    hit = mesh._scene.cast_rays(o3d.core.Tensor(np.concatenate([o, -n], 1).astype(np.float32)))
+    dist = hit["t_hit"].numpy().astype(np.float64)
+    facing = np.abs((hit["primitive_normals"].numpy().astype(np.float64) * n).sum(-1))
+    keep = (np.isfinite(dist) & (dist > cfg.change.depth_tol_m) & (dist <= cfg.max_translation_m)
+            & (facing > np.cos(np.radians(cfg.hidden_parallel_deg))))
+    return o[keep] - n[keep] * dist[keep, None]
 
 
 def _dbscan(points: np.ndarray, eps: float, min_points: int = 4) -> np.ndarray:
