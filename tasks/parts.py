@@ -44,8 +44,8 @@ def settle_candidate_parts(
     """The settled parts: one joint per kept candidate, numbered again in the candidates' order
     (``joint_k``; ``mask_labels`` says which candidate label it was, ``label_map`` where every
     candidate label goes), with every candidate's fate (``fates``): the part finder's, the joint
-    fit's and this stage's. A part whose tracks gave no joint or a fixed one, but whose depth
-    confirms the part finder's joint (``masks.depth_joints``), is kept on that joint
+    fit's and this stage's. A part whose tracks gave no joint, a fixed one, one that hardly moves or
+    one its depth refutes, but whose depth confirms the part finder's joint (``masks.depth_joints``), is kept on that joint
     (``selection``'s ``joint_from_depth`` is 1 and its fate says why)."""
     labels = joints.mask_labels if joints.mask_labels is not None else list(range(1, len(joints.joints) + 1))
     candidate_joints = {lab: to_core(Joint, j) for lab, j in zip(labels, joints.joints, strict=True)}

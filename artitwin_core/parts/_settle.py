@@ -7,10 +7,10 @@ must end as one of three fates, and never take the run down:
 
 - **kept**: a part with a joint of its own (a fit that moves more than a couple of centimetres or
   degrees, that its own depth confirms, and depth enough to build its mesh). Where its tracks
-  show no motion (fitted fixed) or could not be fitted at all, the part finder's joint, fitted
-  to the part's change in depth, stands in for theirs if the depth confirms it: on a weakly
-  textured door the tracks stick to the static edges around it and say "fixed" while the door
-  swings. A screw is kept as the slide or turn its
+  show no motion (fitted fixed, or a joint that hardly moves), could not be fitted at all, or
+  fitted a joint its depth refutes, the part finder's joint, fitted to the part's change in
+  depth, stands in for theirs if the depth confirms it: on a weakly textured door the tracks
+  stick to the static edges around it and say "fixed" while the door swings. A screw is kept as the slide or turn its
   depth explains nearly as well, unless the user asked for the screw: a drawer front turning in
   its own plane looks the same in depth, and tracks that a hand crosses can carry that turn;
 - **merged** into a kept part: it has the same joint and states as that part, or that part's
@@ -107,9 +107,9 @@ def settle_parts(
         earlier: fates already decided (the part finder's, for candidates it never labelled; the
             joint fit's, for labels it could not fit): kept in the result, their ``part`` filled.
         depth_joints: candidate mask label -> the part finder's joint, fitted to the change in
-            depth (canonical frame): it stands in for a candidate whose tracks gave no joint or a
-            fixed one, where the candidate's depth confirms it (``confirm_min_ratio``,
-            ``confirm_min_margin_m``).
+            depth (canonical frame): it stands in for a candidate whose tracks gave no joint, a
+            fixed one, one that hardly moves (``min_range_*``) or one its depth refutes, where the
+            candidate's depth confirms it (``confirm_min_ratio``, ``confirm_min_margin_m``).
         screws_asked: candidate mask labels whose screw the user asked for (the effect
             ``screw_joint``): left a screw even where the depth prefers a slide or a turn.
         config: thresholds.
@@ -137,8 +137,15 @@ def settle_parts(
         for lab in range(1, n_labels + 1)
     }
     for lab, c in cands.items():
-        if (c.joint is None or c.joint.joint_type == "fixed") and (depth := (depth_joints or {}).get(lab)) is not None:
+        if (depth := (depth_joints or {}).get(lab)) is None:
+            continue
+        if c.joint is None or c.joint.joint_type == "fixed":
             _stand_in(c, depth, earlier_by_label.get(lab), cfg, dynamic, masks, c_from_s)
+        elif _too_small(c.joint, cfg) and not _too_small(depth, cfg):
+            # Tracks held by the static edges around a part (or by the hand) drift a little with
+            # it: a joint that hardly moves is no motion of its own, as a fixed one.
+            _stand_in(c, depth, None, cfg, dynamic, masks, c_from_s,
+                      f"the {c.joint.joint_type} joint fitted to its {c.tracks} tracks moves it by only {_range(c.joint, cfg)}")
     decided: dict[int, PartFate] = {}
     kept: list[int] = []
     unconfirmed: dict[int, str] = {}  # a joint that is no motion of its own, and why
