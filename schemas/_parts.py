@@ -48,6 +48,11 @@ class PartStageConfig(StageConfig):
         description="Surface counts as hidden only where the nearer surface faces its way within this angle, degrees "
         "(a front slid along its normal; a hand, an arm or a turned door hides surface at an angle); 90 or more: any.",
     )
+    hidden_max_tilt_deg: float = Field(
+        default=30.0, ge=0, le=90,
+        description="Hidden surface is a drawer's front, which slides level: one whose slide would leave the horizontal by "
+        "more than this, degrees, is dropped.",
+    )
     min_hidden_part_voxels: int = Field(default=20, ge=1, description="min_part_voxels for hidden surface.")
     sample_m: float = Field(default=0.01, gt=0, description="Spacing of a part's surface samples, metres.")
     max_rotation_rad: float = Field(default=2.0, gt=0, description="Range of the door hypotheses, radians.")

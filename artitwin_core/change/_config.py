@@ -50,6 +50,9 @@ class PartConfig:
             hid its closed surface without leaving any vanished was pulled along its front's
             normal, so its front, seen nearer, is parallel to the closed front it hides; a hand,
             an arm, or a door turned open hides surface at an angle.
+        hidden_max_tilt_deg: hidden surface is a drawer's front, which slides level: one whose
+            slide would leave the horizontal by more than this (degrees) is dropped (a flat
+            surface held over a floor or a shelf hides surface facing its way too).
         min_hidden_part_voxels: ``min_part_voxels`` for hidden surface: only where the front
             is seen over its own closed place (and not behind the hand or another part) does
             it count, a strip of the front at an oblique view.
@@ -149,6 +152,7 @@ class PartConfig:
     min_part_voxels: int = 60
     min_occluded_frames: int = 4
     hidden_parallel_deg: float = 15.0
+    hidden_max_tilt_deg: float = 30.0
     min_hidden_part_voxels: int = 20
     sample_m: float = 0.01
     max_rotation_rad: float = 2.0

@@ -156,6 +156,15 @@ def _screen(
         # does not contradict; so no see-through penalty in its fit.
         fit_cfg = replace(cfg, violation_weight=0.0, max_rotation_rad=0.0) if hidden else cfg
         model = replace(_fit_ungrown(pts, onset, views, up, frames, fit_cfg, mesh, still_supports=not hidden), hidden=hidden)
+        tilt = float(np.degrees(np.arcsin(min(1.0, abs(float(model.axis @ up))))))
+        if hidden and tilt > cfg.hidden_max_tilt_deg:
+            # A drawer slides level. Something held over a floor, a shelf or a worktop (a boxy
+            # glove's flat top) hides a surface that faces its way too, and "slides" up from it.
+            fates.append(PartFate(candidate=i, fate="dropped", stage="part_masks",
+                                  reason=f"its {len(pts)} surface samples, hidden by a nearer surface facing their way, "
+                                  f"would slide {tilt:.0f} deg from level (drawers slide level; at most "
+                                  f"{cfg.hidden_max_tilt_deg:g} deg)"))
+            continue
         host = _host_part(model, [*earlier, *models], views, cfg)
         if host is not None and host[0] < len(earlier):
             fates.append(PartFate(candidate=i, fate="dropped", stage="part_masks",

@@ -213,6 +213,33 @@ def test_a_front_pulled_out_over_the_floor_is_found_where_it_was():
     assert abs(models[0].reference_q * float(models[0].axis[2]) - 0.2) < 0.01
 
 
+def test_a_flat_thing_held_over_the_floor_is_no_drawer():
+    # A boxy glove's flat top, held 25 cm over the floor for the whole recording, hides floor
+    # that faces its way: moved back along its normal it lands on the floor, and it would "slide"
+    # straight up. Drawers slide level.
+    wall = _quad(np.array([-1.0, 0.0, 0.0]), np.array([2.0, 0.0, 0.0]), np.array([0.0, 1.5, 0.0]))
+    floor = _quad(np.array([-1.0, 0.0, 0.0]), np.array([2.0, 0.0, 0.0]), np.array([0.0, 0.0, 1.5]))
+    canonical = _mesh(wall, floor)
+    eye, target = np.array([0.25, 1.0, 0.9]), np.array([0.0, 0.15, 0.2])
+    f = (target - eye) / np.linalg.norm(target - eye)
+    right = np.cross(f, [0.0, 1.0, 0.0])
+    right /= np.linalg.norm(right)
+    pose = np.eye(4)
+    pose[:3, :3] = np.stack([right, np.cross(f, right), f], 1)
+    pose[:3, 3] = eye
+    _, rendered, _ = canonical.render(pose, _K, _W, _H)
+    views = []
+    for t in range(14):
+        top = _quad(np.array([-0.2 + 0.005 * t, 0.25, 0.15]), np.array([0.3, 0.0, 0.0]), np.array([0.0, 0.0, 0.2]), 4)
+        _, observed, _ = _mesh(wall, floor, top).render(pose, _K, _W, _H)
+        views.append(FrameView(pose, _K, observed, rendered, t / 15.0))
+    hidden = find_moved_parts(views, PartConfig(), hidden=True, mesh=canonical)
+    assert hidden, "the floor under it is hidden by a surface facing its way"
+    models, _, fates = screen_candidates(views, config=PartConfig(), mesh=canonical)
+    assert models == [], [(m.joint_type, m.axis) for m in models]
+    assert any("from level" in f.reason for f in fates), fates
+
+
 def test_a_hand_in_front_of_the_wall_hides_no_part():
     # A 5 cm sphere held 25 cm out, drifting across the wall over 14 frames: it hides wall in
     # every frame, but its surface faces the wall's way only at its very front.
