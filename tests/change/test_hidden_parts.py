@@ -172,15 +172,14 @@ def _mesh(*quads: tuple[np.ndarray, np.ndarray]) -> CanonicalMesh:
     return CanonicalMesh(v, np.concatenate(tris).astype(np.int32), np.full_like(v, 0.5))
 
 
-def test_a_front_pulled_out_over_the_floor_is_found_where_it_was():
-    # A drawer at the foot of a wall, seen from above: pulled 20 cm out, most of its front is
-    # seen over the floor, which faces up, not its way; only where the front still covers its
-    # closed place does the surface behind it along the ray face its way. Moved back along its
-    # own normal, the front meets its closed place wherever it is seen.
+def _wall_and_floor(target: np.ndarray):
+    """A wall (z = 0) on a floor (y = 0) as the canonical mesh, and a camera 1 m up and 0.9 m out
+    looking down at ``target``: the wall's and the floor's quads, the mesh, the camera pose and
+    the mesh's depth from it."""
     wall = _quad(np.array([-1.0, 0.0, 0.0]), np.array([2.0, 0.0, 0.0]), np.array([0.0, 1.5, 0.0]))
     floor = _quad(np.array([-1.0, 0.0, 0.0]), np.array([2.0, 0.0, 0.0]), np.array([0.0, 0.0, 1.5]))
     canonical = _mesh(wall, floor)
-    eye, target = np.array([0.25, 1.0, 0.9]), np.array([0.0, 0.15, 0.0])
+    eye = np.array([0.25, 1.0, 0.9])
     f = (target - eye) / np.linalg.norm(target - eye)
     right = np.cross(f, [0.0, 1.0, 0.0])
     right /= np.linalg.norm(right)
@@ -188,6 +187,15 @@ def test_a_front_pulled_out_over_the_floor_is_found_where_it_was():
     pose[:3, :3] = np.stack([right, np.cross(f, right), f], 1)
     pose[:3, 3] = eye
     _, rendered, _ = canonical.render(pose, _K, _W, _H)
+    return wall, floor, canonical, pose, rendered
+
+
+def test_a_front_pulled_out_over_the_floor_is_found_where_it_was():
+    # A drawer at the foot of a wall, seen from above: pulled 20 cm out, most of its front is
+    # seen over the floor, which faces up, not its way; only where the front still covers its
+    # closed place does the surface behind it along the ray face its way. Moved back along its
+    # own normal, the front meets its closed place wherever it is seen.
+    wall, floor, canonical, pose, rendered = _wall_and_floor(np.array([0.0, 0.15, 0.0]))
     states = np.concatenate([np.zeros(4), np.linspace(0.0, 0.2, 7)[1:], np.full(3, 0.2)])
     views = []
     for t, q in enumerate(states):
@@ -217,17 +225,7 @@ def test_a_flat_thing_held_over_the_floor_is_no_drawer():
     # A boxy glove's flat top, held 25 cm over the floor for the whole recording, hides floor
     # that faces its way: moved back along its normal it lands on the floor, and it would "slide"
     # straight up. Drawers slide level.
-    wall = _quad(np.array([-1.0, 0.0, 0.0]), np.array([2.0, 0.0, 0.0]), np.array([0.0, 1.5, 0.0]))
-    floor = _quad(np.array([-1.0, 0.0, 0.0]), np.array([2.0, 0.0, 0.0]), np.array([0.0, 0.0, 1.5]))
-    canonical = _mesh(wall, floor)
-    eye, target = np.array([0.25, 1.0, 0.9]), np.array([0.0, 0.15, 0.2])
-    f = (target - eye) / np.linalg.norm(target - eye)
-    right = np.cross(f, [0.0, 1.0, 0.0])
-    right /= np.linalg.norm(right)
-    pose = np.eye(4)
-    pose[:3, :3] = np.stack([right, np.cross(f, right), f], 1)
-    pose[:3, 3] = eye
-    _, rendered, _ = canonical.render(pose, _K, _W, _H)
+    wall, floor, canonical, pose, rendered = _wall_and_floor(np.array([0.0, 0.15, 0.2]))
     views = []
     for t in range(14):
         top = _quad(np.array([-0.2 + 0.005 * t, 0.25, 0.15]), np.array([0.3, 0.0, 0.0]), np.array([0.0, 0.0, 0.2]), 4)
