@@ -185,20 +185,11 @@ def settle_parts(
     for lab in list(kept):
         c = cands[lab]
         fit = _misfits(c, _joint(c), cfg)
-        refuted = ""
-        if fit is None:
-            # Its motion never carries its points min_discrimination_m beyond where it sits closed
-            # in a frame with depth: nothing confirms it moves (a piece of the arm beside a part,
-            # fitted a small turn about its own corner).
-            refuted = (f"the {_joint(c).joint_type} joint fitted to its {c.tracks} tracks never moves its points "
-                       f"{1e3 * cfg.min_discrimination_m:.0f} mm beyond where they sit closed in a frame with depth, "
-                       "so its depth cannot confirm it")
-        elif not _confirms(fit, cfg):
-            refuted = f"its depth does not confirm the {_joint(c).joint_type} joint fitted to its {c.tracks} tracks ({_own_misfits(fit)})"
-        if refuted:
+        if fit is None or not _confirms(fit, cfg):
             # Tracks that the hand drags over a part, or that stick to the static edges around it,
             # can fit a joint its depth refutes; the part finder's joint, fitted to that depth,
             # stands in where the depth confirms it, as for a part whose tracks saw no motion.
+            refuted = _refutation(c, fit, cfg)
             if not c.from_depth and (depth := (depth_joints or {}).get(lab)) is not None:
                 _stand_in(c, depth, None, cfg, dynamic, masks, c_from_s, refuted)
             if not c.from_depth:
@@ -231,6 +222,18 @@ def settle_parts(
         why += f"; {c.refused}" if c.refused else ""
         decided[lab] = _explain_or_drop(c, why, [cands[k] for k in kept if _adjacent(part, k, lab, cfg)], cfg)
     return _resolve(cands, decided, kept, earlier, n_labels)
+
+
+def _refutation(c: _Candidate, fit: tuple[float, float] | None, cfg: SettleConfig) -> str:
+    """Why ``c``'s own joint, with its misfits ``fit`` (:func:`_misfits`), is not confirmed."""
+    if fit is None:
+        # Its motion never carries its points min_discrimination_m beyond where it sits closed
+        # in a frame with depth: nothing confirms it moves (a piece of the arm beside a part,
+        # fitted a small turn about its own corner).
+        return (f"the {_joint(c).joint_type} joint fitted to its {c.tracks} tracks never moves its points "
+                f"{1e3 * cfg.min_discrimination_m:.0f} mm beyond where they sit closed in a frame with depth, "
+                "so its depth cannot confirm it")
+    return f"its depth does not confirm the {_joint(c).joint_type} joint fitted to its {c.tracks} tracks ({_own_misfits(fit)})"
 
 
 def _stand_in(
