@@ -25,11 +25,21 @@ def store(tmp_path_factory):
     return str(tmp_path_factory.mktemp("robust") / "store")
 
 
-def _registration_again() -> PipelineConfig:
-    """The quick preset with another registration config: the register stage runs (and fails)
-    again in the shared store, whose static stages stay cached."""
+def _light() -> PipelineConfig:
+    """The quick preset with a third of its 3DGS and stage IV steps: these tests judge what
+    becomes of each part and stage, not the twin's pixels (training took 38 of a quick run's 105 s)."""
     quick = PipelineConfig.preset("quick")
-    return quick.model_copy(update={"registration": quick.registration.model_copy(update={"yaw_step_deg": 3.0})})
+    return quick.model_copy(update={
+        "reconstruct": quick.reconstruct.model_copy(update={"steps": 100}),
+        "articulate": quick.articulate.model_copy(update={"phase1_steps": 40, "phase2_steps": 20}),
+    })
+
+
+def _registration_again() -> PipelineConfig:
+    """``_light`` with another registration config: the register stage runs (and fails) again in
+    the shared store, whose static stages stay cached."""
+    light = _light()
+    return light.model_copy(update={"registration": light.registration.model_copy(update={"yaw_step_deg": 3.0})})
 
 
 def _free_window(free: np.ndarray, size: int) -> tuple[int, int]:
@@ -61,7 +71,7 @@ def test_untrackable_and_depthless_candidates_are_dropped_not_exported(tiny_scen
 
     monkeypatch.setattr(register, "segment_parts", with_spurious_parts)
     out = tmp_path / "out"
-    summary = run_scene_inline(tiny_scene, PipelineConfig.preset("quick"), store, out=out)
+    summary = run_scene_inline(tiny_scene, _light(), store, out=out)
     assert summary["status"] == "ok"
     fates = {p["candidate"]: p for p in json.loads((out / "summary.json").read_text())["parts"]}
     assert fates[0]["fate"] == "kept" and fates[0]["joint"] == "joint_0"
@@ -116,7 +126,7 @@ def test_a_scene_where_nothing_moved_ends_with_a_static_twin(tiny_scene, store, 
     for name in ("static.r3d", "dynamic.r3d"):
         shutil.copy(tiny_scene / "static.r3d", still / name)
     out = tmp_path / "out"
-    summary = run_scene_inline(still, PipelineConfig.preset("quick"), store, out=out)
+    summary = run_scene_inline(still, _light(), store, out=out)
     assert summary["status"] == "ok" and summary["joints"] == [] and summary["parts"] == []
     assert any("No moving part found" in n for n in summary["stages"]["settle_parts"]["notes"])
     reg = np.asarray(summary["stages"]["register"]["canonical_from_session"])
