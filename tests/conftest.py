@@ -5,8 +5,10 @@ Applied before any test module imports prefect (which reads its settings at impo
 
 from __future__ import annotations
 
+import json
 import os
 import tempfile
+from pathlib import Path
 
 _HOME = tempfile.mkdtemp(prefix="artitwin-test-home-")
 
@@ -31,15 +33,40 @@ from flows._env import apply_prefect_defaults  # noqa: E402
 apply_prefect_defaults()
 
 
+# Seconds each test file took in a full run (``pytest --store-durations`` rewrites it).
+DURATIONS = Path(__file__).with_name("durations.json")
+_seconds: dict[str, float] = {}
+
+
+def pytest_addoption(parser):
+    parser.addoption("--store-durations", action="store_true",
+                     help=f"write the seconds of each test file run to {DURATIONS.name} (the workers' file order)")
+
+
+def _file_of(nodeid: str) -> str:
+    return nodeid.split("::")[0]
+
+
 def pytest_collection_modifyitems(items):
-    """Files with the most slow tests (``@pytest.mark.slow``) first, each file's tests in order.
+    """The longest files first (``durations.json``), each file's tests in order.
 
-    The workers take a file at a time in collection order; a slow file left for last runs alone
-    while the other worker idles. Longest first keeps both busy to the end."""
-    def file_of(item) -> str:
-        return item.nodeid.split("::")[0]
-
-    slow: dict[str, int] = {}
+    The workers take a file at a time in collection order; a long file left for last runs alone
+    while the other worker idles. Longest first keeps both busy to the end. A file not in
+    ``durations.json`` yet counts 20 s per slow test (``@pytest.mark.slow``) and 1 s per other."""
+    known = json.loads(DURATIONS.read_text()) if DURATIONS.is_file() else {}
+    guess: dict[str, float] = {}
     for item in items:
-        slow[file_of(item)] = slow.get(file_of(item), 0) + ("slow" in item.keywords)
-    items.sort(key=lambda item: -slow[file_of(item)])  # stable: collection order among equals
+        guess[_file_of(item.nodeid)] = guess.get(_file_of(item.nodeid), 0.0) + (20.0 if "slow" in item.keywords else 1.0)
+    items.sort(key=lambda item: -known.get(_file_of(item.nodeid), guess[_file_of(item.nodeid)]))  # stable
+
+
+def pytest_runtest_logreport(report):
+    _seconds[_file_of(report.nodeid)] = _seconds.get(_file_of(report.nodeid), 0.0) + report.duration
+
+
+def pytest_sessionfinish(session):
+    # The controller (or a run without workers) sees every test's report; a worker only its own.
+    if session.config.getoption("store_durations") and not hasattr(session.config, "workerinput"):
+        known = json.loads(DURATIONS.read_text()) if DURATIONS.is_file() else {}
+        known.update({f: round(s, 1) for f, s in _seconds.items()})  # the files this run ran; others as they were
+        DURATIONS.write_text(json.dumps(dict(sorted(known.items())), indent=1) + "\n")
