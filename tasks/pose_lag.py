@@ -57,12 +57,13 @@ def _describe(lag: PoseLag) -> str:
     )
 
 
-@stage(name="pose_lag", version=1, config=PoseLagStageConfig, output=PoseLagResult)
+@stage(name="pose_lag", version=2, config=PoseLagStageConfig, output=PoseLagResult)
 def fit_pose_lag(capture: CaptureArtifact, config: PoseLagStageConfig) -> PoseLagResult:
     """How late ``capture``'s poses are against its RGB-D frames (``estimate_pose_lag``) and
     whether ``correct_pose_lag`` applies it: when it is at least ``min_lag_frames``,
     ``min_z_score`` standard errors, and the frames' depth agrees better at it by
-    ``min_agreement_z``; or whenever one was found, with ``model`` (the effect ``pose_lag``).
+    ``min_agreement_z``; or, with ``model`` (the effect ``pose_lag``), whenever one was found at
+    least one standard error from 0.
 
     A recording too short to search is reported (``estimated = False``, a note), not refused: the
     lag is an optional correction and the run goes on with the poses as recorded.
@@ -74,10 +75,16 @@ def fit_pose_lag(capture: CaptureArtifact, config: PoseLagStageConfig) -> PoseLa
         return _not_estimated(capture, f"The pose lag was not estimated: {e}")
     why = lag.why_not(**core_kwargs(PoseLag.why_not, config))
     in_range = math.isfinite(lag.lag_s) and not lag.at_range_end
-    forced = bool(config.model and why and in_range and lag.lag_s != 0.0)
+    # Forced, a lag within one standard error of zero is not applied: it is indistinguishable
+    # from none, and shifting the poses by it would only recompute every later stage.
+    noise = bool(config.model and why and in_range and lag.z_score < 1.0)
+    forced = bool(config.model and why and in_range and lag.lag_s != 0.0 and not noise)
     applied = bool(config.correct and (not why or forced))
     said = f"The poses are {_describe(lag)} against the images"
-    if applied and not forced:
+    if noise:
+        note = (f"{said}; not corrected although the effect pose_lag is modelled: it is within one standard "
+                f"error of 0 ({lag.z_score:.1f}), no lag that the frames can tell from none.")
+    elif applied and not forced:
         note = (
             f"{said}; corrected (the frames' depth misfit {1e3 * lag.residual_zero_m:.1f} -> {1e3 * lag.residual_lag_m:.1f} mm, "
             f"agreement {lag.agreement_z:.1f} standard errors better)."

@@ -1,5 +1,5 @@
 """The pose_lag and correct_pose_lag stages: a significant lag is stored and applied, none is
-left alone, the effect pose_lag forces it, the switch turns the correction off (and takes its
+left alone, the effect pose_lag forces it (unless it is within its standard error of 0), the switch turns the correction off (and takes its
 stage out of the graph), and summary.json and the diagnosis report it."""
 
 from __future__ import annotations
@@ -57,6 +57,20 @@ def test_no_lag_is_left_alone_unless_the_effect_forces_it(captures):
     forced = fit_pose_lag(clean, forced_config)
     assert forced.applied and forced.forced and "effect pose_lag" in forced.note
     assert abs(forced.lag_frames) < 0.1  # forcing applies the estimate, which is near zero here
+    assert forced.z_score >= 1.0  # measured 1.9: a lag the frames can tell from none, however small
+
+
+def test_a_forced_lag_within_its_standard_error_is_not_applied():
+    """Forced on a recording whose estimate is within one standard error of 0 (the tiny scene's
+    static sweep: 0.3), nothing is applied: the capture passes through, and every later stage
+    computes what it did without the effect (applied, the 0.2-standard-error lag moved a clean
+    scene's joint track residual by 6 %)."""
+    clean = to_artifact(CaptureArtifact, generate_scene(BENCHMARK_SCENES["tiny"]).static)
+    config = PipelineConfig().with_effects(["pose_lag"]).pose_lag
+    lag = fit_pose_lag(clean, config)
+    assert lag.estimated and lag.z_score < 1.0 and not lag.applied and not lag.forced
+    assert "within one standard error of 0" in lag.note and "effect pose_lag is modelled" in lag.note
+    assert correct_pose_lag(clean, lag, config) is clean
 
 
 def test_the_switch_turns_the_correction_off_but_still_reports(captures):
