@@ -76,7 +76,7 @@ def fit_pose_lag(capture: CaptureArtifact, config: PoseLagStageConfig) -> PoseLa
     why = lag.why_not(**core_kwargs(PoseLag.why_not, config))
     in_range = math.isfinite(lag.lag_s) and not lag.at_range_end
     # Forced, a lag within one standard error of zero is not applied: it is indistinguishable
-    # from none, and shifting the poses by it would only recompute every later stage.
+    # from none, and shifting the poses by it only adds noise to every later stage.
     noise = bool(config.model and why and in_range and lag.z_score < 1.0)
     forced = bool(config.model and why and in_range and lag.lag_s != 0.0 and not noise)
     applied = bool(config.correct and (not why or forced))
