@@ -77,8 +77,9 @@ def fit_pose_lag(capture: CaptureArtifact, config: PoseLagStageConfig) -> PoseLa
     in_range = math.isfinite(lag.lag_s) and not lag.at_range_end
     # Forced, a lag within one standard error of zero is not applied: it is indistinguishable
     # from none, and shifting the poses by it only adds noise to every later stage.
-    noise = bool(config.model and why and in_range and lag.z_score < 1.0)
-    forced = bool(config.model and why and in_range and lag.lag_s != 0.0 and not noise)
+    may_force = bool(config.model and why and in_range)
+    noise = may_force and lag.z_score < 1.0
+    forced = may_force and lag.lag_s != 0.0 and not noise
     applied = bool(config.correct and (not why or forced))
     said = f"The poses are {_describe(lag)} against the images"
     if noise:

@@ -47,13 +47,17 @@ def _file_of(nodeid: str) -> str:
     return nodeid.split("::")[0]
 
 
+def _stored_durations() -> dict[str, float]:
+    return json.loads(DURATIONS.read_text()) if DURATIONS.is_file() else {}
+
+
 def pytest_collection_modifyitems(items):
     """The longest files first (``durations.json``), each file's tests in order.
 
     The workers take a file at a time in collection order; a long file left for last runs alone
     while the other worker idles. Longest first keeps both busy to the end. A file not in
     ``durations.json`` yet counts 20 s per slow test (``@pytest.mark.slow``) and 1 s per other."""
-    known = json.loads(DURATIONS.read_text()) if DURATIONS.is_file() else {}
+    known = _stored_durations()
     guess: dict[str, float] = {}
     for item in items:
         guess[_file_of(item.nodeid)] = guess.get(_file_of(item.nodeid), 0.0) + (20.0 if "slow" in item.keywords else 1.0)
@@ -67,6 +71,6 @@ def pytest_runtest_logreport(report):
 def pytest_sessionfinish(session):
     # The controller (or a run without workers) sees every test's report; a worker only its own.
     if session.config.getoption("store_durations") and not hasattr(session.config, "workerinput"):
-        known = json.loads(DURATIONS.read_text()) if DURATIONS.is_file() else {}
+        known = _stored_durations()
         known.update({f: round(s, 1) for f, s in _seconds.items()})  # the files this run ran; others as they were
         DURATIONS.write_text(json.dumps(dict(sorted(known.items())), indent=1) + "\n")

@@ -1,6 +1,7 @@
 """The pose_lag and correct_pose_lag stages: a significant lag is stored and applied, none is
-left alone, the effect pose_lag forces it (unless it is within its standard error of 0), the switch turns the correction off (and takes its
-stage out of the graph), and summary.json and the diagnosis report it."""
+left alone, the effect pose_lag forces it (unless it is within its standard error of 0), the
+switch turns the correction off (and takes its stage out of the graph), and summary.json and the
+diagnosis report it."""
 
 from __future__ import annotations
 
