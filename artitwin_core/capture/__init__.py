@@ -11,7 +11,12 @@ from artitwin_core.capture._calibrate import (
     estimate_depth_calibration,
 )
 from artitwin_core.capture._common import depth_intrinsics_from_rgb, downscale_rgb, scale_intrinsics
-from artitwin_core.capture._config import DepthCalibrationConfig, KeyframeConfig, PoseLagConfig
+from artitwin_core.capture._config import (
+    DepthCalibrationConfig,
+    KeyframeConfig,
+    PoseLagConfig,
+    VignettingConfig,
+)
 from artitwin_core.capture._detect import FORMATS, detect_format, read_capture, recording_files
 from artitwin_core.capture._drift import DriftSignificance, PoseDrift, drift_significance
 from artitwin_core.capture._keyframes import KeyframeSelection, select_keyframes
@@ -23,6 +28,7 @@ from artitwin_core.capture._record3d_exr import read_record3d_exr, write_record3
 from artitwin_core.capture._scene import SceneRecordings, find_scene_recordings
 from artitwin_core.capture._stray import read_stray, write_stray
 from artitwin_core.capture._types import Capture, intrinsics_matrix
+from artitwin_core.capture._vignetting import VignettingEstimate, estimate_vignetting
 
 __all__ = [
     "drift_significance",
@@ -38,6 +44,8 @@ __all__ = [
     "PoseLagConfig",
     "ReadOptions",
     "SceneRecordings",
+    "VignettingConfig",
+    "VignettingEstimate",
     "calibrate_depth",
     "correct_pose_lag",
     "depth_intrinsics_from_rgb",
@@ -45,6 +53,7 @@ __all__ = [
     "downscale_rgb",
     "estimate_depth_calibration",
     "estimate_pose_lag",
+    "estimate_vignetting",
     "find_scene_recordings",
     "intrinsics_matrix",
     "read_capture",

@@ -1,5 +1,5 @@
 """Hyperparameters of the capture stages: depth calibration (:class:`DepthCalibrationConfig`),
-keyframe selection (:class:`KeyframeConfig`) and the pose-lag fit (:class:`PoseLagConfig`).
+the vignetting test (:class:`VignettingConfig`), keyframe selection (:class:`KeyframeConfig`) and the pose-lag fit (:class:`PoseLagConfig`).
 """
 
 from __future__ import annotations
@@ -54,6 +54,53 @@ class DepthCalibrationConfig:
     pose_drift: bool = False
     gravity: tuple[float, float, float] = (0.0, -1.0, 0.0)
     feature_gaps: tuple[int, ...] = (2, 4, 8, 16)
+
+
+@dataclass(frozen=True)
+class VignettingConfig:
+    """Hyperparameters of :func:`estimate_vignetting`.
+
+    Attributes:
+        frame_gaps: each frame is compared with the frames this many frames later (farther
+            frames see a surface at more different radii, nearer ones overlap more).
+        pixel_stride: every n-th depth pixel each way is used.
+        max_side: the RGB frames are compared at most this many pixels on the long side (the
+            vignetting is smooth; finer pixels add only pose and depth error).
+        max_depth_m: depth beyond this is not used.
+        min_confidence: depth whose ARKit confidence is below this is not used.
+        occlusion_rel: a point whose depth in the second frame differs from that frame's own
+            depth by more than this share of it is hidden there (or moved) and not used.
+        max_srgb: pixels with a channel at or above this sRGB value are clipped and not used.
+        min_linear: pixels with a channel at or below this linear value are too dark (noise
+            dominates their log) and not used.
+        max_log_gradient: pixels where the log intensity changes by more than this per pixel
+            (an edge or texture) are not used: a pixel's misplacement moves their value most.
+        min_pair_points: a frame pair with fewer usable points is skipped.
+        iterations: reweighted least-squares solves.
+        jackknife_blocks: the standard error comes from leaving out this many blocks of
+            consecutive frames in turn.
+    """
+
+    frame_gaps: tuple[int, ...] = (2, 4, 8)
+    pixel_stride: int = 2
+    max_side: int = 320
+    max_depth_m: float = 4.5
+    min_confidence: int = 1
+    occlusion_rel: float = 0.03
+    max_srgb: float = 0.97
+    min_linear: float = 0.004
+    max_log_gradient: float = 0.05
+    min_pair_points: int = 50
+    iterations: int = 5
+    jackknife_blocks: int = 8
+
+    def __post_init__(self) -> None:
+        if not self.frame_gaps or min(self.frame_gaps) < 1:
+            raise InputError(f"VignettingConfig.frame_gaps must be positive frame counts, got {self.frame_gaps}.")
+        if self.pixel_stride < 1 or self.max_side < 8:
+            raise InputError(
+                f"VignettingConfig: pixel_stride {self.pixel_stride} must be >= 1 and max_side {self.max_side} >= 8."
+            )
 
 
 @dataclass(frozen=True)
