@@ -283,9 +283,10 @@ def comparison_targets(ra: RunRecord, rb: RunRecord) -> tuple[list[tuple[str, st
             continue
         target, leaf = EFFECT_CURVES[effect]
         for scope in _scopes_of(entry, curve_scopes):
-            # A depth error or drift the twin absorbed: the recording's disagreement with itself,
-            # where the diagnosis of both runs measured it (the static recording's).
-            own = f"diagnose/{scope}/{SELF_CONSISTENCY_METRICS[effect]}" if effect in SELF_CONSISTENCY_METRICS else None
+            # A depth error, drift or vignetting the twin absorbed: the recording's disagreement
+            # with itself, where the diagnosis of both runs measured it.
+            stage = "diagnose_dynamic" if scope == DYNAMIC_SCOPE else "diagnose"
+            own = f"{stage}/{scope}/{SELF_CONSISTENCY_METRICS[effect]}" if effect in SELF_CONSISTENCY_METRICS else None
             if own in ra.metrics and own in rb.metrics:
                 targets.append((f"{scope}, agreement with itself ({SELF_CONSISTENCY_METRICS[effect]})", own, entry))
             else:

@@ -90,15 +90,21 @@ class DiagnoseConfig(StageConfig):
     )
     self_consistency: bool = Field(
         default=True,
-        description="Also test the static recording against itself, without the twin: whether its frames' depth and "
-        "keypoints agree only under a linear pose drift (gated as PoseDriftConfig's defaults gate it) or a depth "
-        "scale and offset (artitwin_core.capture.estimate_depth_calibration).",
+        description="Also test the recordings against themselves, without the twin: whether the static recording's "
+        "frames' depth and keypoints agree only under a linear pose drift (gated as PoseDriftConfig's defaults gate it) "
+        "or a depth scale and offset (artitwin_core.capture.estimate_depth_calibration), and whether each recording's "
+        "frames agree in colour only under vignetting (artitwin_core.capture.estimate_vignetting).",
     )
     self_consistency_min_depth_pixels: int = Field(
         default=8000, ge=0,
         description="The self-consistency test runs only on depth maps of at least this many pixels: on coarser ones "
         "its standard errors are too small to gate on (64x48 maps: a depth error flagged in 4 of 20 clean recordings, "
         "at up to 6.5 standard errors; 128x96: none of 20). Phone depth maps are 256x192 or larger.",
+    )
+    min_vignetting_falloff: float = Field(
+        default=0.05, ge=0, le=1,
+        description="The self-consistency test of each recording enables vignetting when the corner fall-off its own "
+        "frames show, past the twin's model of the camera, is at least this share of the light and 3 standard errors.",
     )
     min_depth_error_m: float = Field(
         default=0.005, ge=0,
@@ -130,6 +136,11 @@ class ViewPrediction(Artifact):
         default=None,
         description="The camera poses the prediction was rendered at (the twin's, e.g. refined), [T, 4, 4]; None = the capture's.",
     )
+    vignetting: list[float] | None = Field(
+        default=None,
+        description="The radial gain 1 + a r^2 + b r^4 the prediction applied, (a, b): the twin's model of the camera's "
+        "vignetting (r over the farthest image corner's distance from the principal point); None = none modelled.",
+    )
 
 
 class EffectFinding(Artifact):
@@ -151,12 +162,14 @@ class EffectFinding(Artifact):
     )
 
 
-# The static diagnosis's metrics of the recording's disagreement with itself (under "static
-# recording/", each with a standard error "..._se"), by the effect whose model removes it: a twin
-# trained on biased depth or drifting poses absorbs those, so ``artitwin compare`` leads with these.
+# The diagnosis's metrics of a recording's disagreement with itself (under its scope, "static
+# recording/" or "dynamic recording/", each with a standard error "..._se"), by the effect whose
+# model removes it: a twin trained on biased depth, drifting poses or vignetted frames absorbs
+# those, so ``artitwin compare`` leads with these.
 SELF_CONSISTENCY_METRICS = {
     "depth_scale_offset": "self_consistency_depth_error_m",
     "pose_drift": "self_consistency_drift_m",
+    "vignetting": "self_consistency_vignetting_falloff",
 }
 
 

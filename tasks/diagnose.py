@@ -22,7 +22,13 @@ from PIL import Image
 
 from artitwin_core import InputError, progress
 from artitwin_core.articulation import TwinRenderer
-from artitwin_core.capture import Capture, DriftSignificance, downscale_rgb, estimate_depth_calibration
+from artitwin_core.capture import (
+    Capture,
+    DriftSignificance,
+    downscale_rgb,
+    estimate_depth_calibration,
+    estimate_vignetting,
+)
 from artitwin_core.capture import DepthCalibrationConfig as CoreCalibrationConfig
 from artitwin_core.diagnostics import DiagnoseConfig as CoreDiagnoseConfig
 from artitwin_core.diagnostics import (
@@ -53,6 +59,7 @@ from schemas import (
     ReportImage,
     TrajectoriesArtifact,
 )
+from schemas._configs import effect_scope
 from schemas._diagnose import (
     SELF_CONSISTENCY_METRICS,
     DiagnoseConfig,
@@ -90,6 +97,7 @@ config_map(
         "min_tracks_count": "the stage leaves joints with fewer tracks undiagnosed",
         "self_consistency": "whether the stage also tests the static recording against itself",
         "min_depth_error_m": "the self-consistency test's gate on the depth error, applied by the stage",
+        "min_vignetting_falloff": "the vignetting self-consistency test's gate, applied by the stage",
         "self_consistency_min_depth_pixels": "the stage skips the self-consistency test on coarser depth maps",
     },
 )
@@ -98,7 +106,8 @@ STATIC_SCOPE = "static recording"
 DYNAMIC_SCOPE = "dynamic recording"
 
 
-@stage(name="predict_views", version=3, config=PredictViewsConfig, output=ViewPrediction)
+# 4: the prediction says which vignetting it applied.
+@stage(name="predict_views", version=4, config=PredictViewsConfig, output=ViewPrediction)
 def predict_views(
     capture: CaptureArtifact, poses: CameraPoses, checkpoint: GaussianCheckpoint, config: PredictViewsConfig
 ) -> ViewPrediction:
@@ -133,11 +142,13 @@ def predict_views(
         cover.append(alpha >= config.min_alpha)
     return ViewPrediction(rgb=np.stack(rgb), depth=np.stack(depth), coverage=np.stack(cover),
                           frame_ids=capture.frame_ids[frames].copy(),
-                          world_from_camera=np.asarray(poses.world_from_camera, np.float64)[frames])
+                          world_from_camera=np.asarray(poses.world_from_camera, np.float64)[frames],
+                          vignetting=_vignetting_of(sensor))
 
 
 # 4: the dynamic recording's camera, when stage IV modelled it, is applied.
-@stage(name="predict_dynamic", version=4, config=PredictViewsConfig, output=ViewPrediction)
+# 5: the prediction says which vignetting it applied.
+@stage(name="predict_dynamic", version=5, config=PredictViewsConfig, output=ViewPrediction)
 def predict_dynamic(
     twin: GaussianCheckpoint,
     dynamic: CaptureArtifact,
@@ -213,7 +224,14 @@ def predict_dynamic(
         depth.append(np.where((alpha_d >= config.min_alpha) & ~hand_d, z, np.nan).astype(np.float32))
         cover.append((alpha >= config.min_alpha) & ~hand)
     return ViewPrediction(rgb=np.stack(rgb), depth=np.stack(depth), coverage=np.stack(cover),
-                          frame_ids=np.asarray(dynamic.frame_ids, np.int64)[frames].copy(), world_from_camera=poses[frames])
+                          frame_ids=np.asarray(dynamic.frame_ids, np.int64)[frames].copy(), world_from_camera=poses[frames],
+                          vignetting=_vignetting_of(camera))
+
+
+def _vignetting_of(camera) -> list[float] | None:
+    """The ``(a, b)`` of the vignetting a sensor model applies, None when it models none."""
+    v = None if camera is None else camera.vignetting
+    return None if v is None else [float(v[0]), float(v[1])]
 
 
 def prediction_frames(n: int, config: PredictViewsConfig) -> list[int]:
@@ -520,6 +538,69 @@ def self_consistency(capture: CaptureArtifact, config: DiagnoseConfig) -> tuple[
     return findings, lines
 
 
+def vignetting_consistency(
+    capture: CaptureArtifact, scope: str, config: DiagnoseConfig, modelled: list[float] | None = None
+) -> tuple[list[EffectFinding], list[str]]:
+    """The recording's vignetting from its own frames, without the twin (``estimate_vignetting``):
+    a finding for ``vignetting`` in ``scope`` and the conclusion's lines.
+
+    A twin trained on vignetted frames takes the darker corners into its view-dependent colour, so
+    its residual against those frames hardly shows them, while the other recording's residual
+    shows their inverse, where the twin now predicts corners too dark: the twin-based test blames
+    the wrong recording. The recording's frames, compared with each other at their poses, say
+    which camera it is. ``modelled``: the twin's model of this camera's vignetting (``(a, b)``,
+    the prediction's); the test then measures what that model left. Enabled (and significant)
+    when the corner fall-off left is at least ``config.min_vignetting_falloff`` and 3 standard
+    errors."""
+    try:
+        est = estimate_vignetting(to_core(Capture, capture), modelled=None if modelled is None else (modelled[0], modelled[1]))
+    except InputError as e:
+        return [], [f"{scope}: its vignetting could not be tested against its own frames ({e})"]
+    on = bool(abs(est.falloff) >= config.min_vignetting_falloff and abs(est.falloff) >= 3.0 * est.falloff_se)
+    finding = EffectFinding(
+        name="vignetting", scope=scope, target="self-consistency",
+        explained_frac=float(1.0 - (est.residual / est.initial_residual) ** 2) if est.initial_residual > 0 else 0.0,
+        energy_before=est.initial_residual**2, energy_after=est.residual**2, significant=on, enabled=on,
+        params=_json_safe({
+            "corner_falloff": est.falloff, "corner_falloff_se": est.falloff_se, "gain_r2": est.gain[0],
+            "gain_r4": est.gain[1], "points": est.points, "modelled": modelled,
+        }),
+    )
+    lines = []
+    if on:
+        left = " beyond what the twin's model of this camera holds" if modelled is not None else ""
+        lines.append(
+            f"{scope}: its own frames agree only under vignetting{left}: the corners {100 * est.falloff:.0f} % "
+            f"{'darker' if est.falloff > 0 else 'brighter'} than the centre (standard error {100 * est.falloff_se:.1f} %). "
+            f"Model it: --effect {effect_scope(scope)}:vignetting."
+        )
+    return [finding], lines
+
+
+def _overrule_twin_vignetting(report: DiagnosisReport, scope: str, own: list[EffectFinding]) -> tuple[DiagnosisReport, list[str]]:
+    """``report`` with its twin-based ``vignetting`` finding in ``scope`` no longer enabled when
+    the recording's own frames (``own``, :func:`vignetting_consistency`) found none: the radial
+    pattern in the twin's residual is then the twin's, carried over from the other recording's
+    vignetting, and modelling this camera's would put a vignette where there is none. With the
+    conclusion's line that says so."""
+    mine = next((f for f in own if f.name == "vignetting"), None)
+    entry = f"{scope}/vignetting"
+    if mine is None or mine.enabled or entry not in report.enabled:
+        return report, []
+    findings = [
+        f.model_copy(update={"enabled": False}) if f.scope == scope and f.name == "vignetting" and f.target != mine.target else f
+        for f in report.findings
+    ]
+    enabled = [e for e in report.enabled if e != entry]
+    metrics = {**report.metrics, "enabled_count": float(len(enabled))}
+    line = (
+        f"{scope}: its residual against the twin has a radial pattern, but its own frames show no vignetting (corner "
+        f"fall-off {100 * mine.params['corner_falloff']:.1f} %, standard error {100 * mine.params['corner_falloff_se']:.1f} %): "
+        "the twin carries it, from the other recording's camera; vignetting is not enabled here."
+    )
+    return report.model_copy(update={"findings": findings, "enabled": enabled, "metrics": metrics}), [line]
+
+
 def pose_lag_finding(lag: PoseLagResult, scope: str) -> tuple[list[EffectFinding], list[str]]:
     """The recording's pose lag (stage ``pose_lag``) as a finding, and the conclusion's line: how
     late its poses are and whether they were corrected. The finding is significant when the lag
@@ -581,7 +662,8 @@ def _with_findings(report: DiagnosisReport, scope: str, findings: list[EffectFin
 
 
 # 10: the self-consistency metrics (self_consistency_metrics).
-@stage(name="diagnose", version=10, config=DiagnoseConfig, output=DiagnosisReport)
+# 11: the recording's own vignetting test.
+@stage(name="diagnose", version=11, config=DiagnoseConfig, output=DiagnosisReport)
 def diagnose_twin(
     capture: CaptureArtifact,
     prediction: ViewPrediction,
@@ -600,37 +682,57 @@ def diagnose_twin(
         if config.effects:  # restricted to named effects
             findings = [f for f in findings if f.name in config.effects]
             lines = [line for line in lines if any(f"--effect {f.name}" in line for f in findings)]
+    report, vig_findings, vig_lines = _with_own_vignetting(report, STATIC_SCOPE, capture, prediction, config)
     lag_findings, lag_lines = _lag_findings(pose_lag, STATIC_SCOPE, config)
     report = _with_positions(report, STATIC_SCOPE, capture, prediction)
+    findings += vig_findings
     report = report.model_copy(update={"metrics": {**report.metrics, **self_consistency_metrics(findings)}})
-    return _with_findings(report, STATIC_SCOPE, findings + lag_findings, lines + lag_lines)
+    return _with_findings(report, STATIC_SCOPE, findings + lag_findings, lines + vig_lines + lag_lines)
+
+
+def _with_own_vignetting(
+    report: DiagnosisReport, scope: str, capture: CaptureArtifact, prediction: ViewPrediction, config: DiagnoseConfig
+) -> tuple[DiagnosisReport, list[EffectFinding], list[str]]:
+    """The recording's own vignetting test (``config.self_consistency``, vignetting among the
+    effects tested), past the twin's model of its camera; ``report`` with its twin-based
+    vignetting overruled where the frames show none; the findings and lines to add."""
+    if not config.self_consistency or (config.effects and "vignetting" not in config.effects):
+        return report, [], []
+    findings, lines = vignetting_consistency(capture, scope, config, prediction.vignetting)
+    report, overruled = _overrule_twin_vignetting(report, scope, findings)
+    return report, findings, lines + overruled
 
 
 def self_consistency_metrics(findings: list[EffectFinding]) -> dict[str, float]:
-    """The static recording's disagreement with itself, as metrics ``artitwin compare`` can lead
-    with: the depth error at the reference depth (``self_consistency_depth_error_m``) and the
-    linear drift's displacement by the last frame (``self_consistency_drift_m``), each with its
-    standard error (``..._se``). These are what ``depth_scale_offset`` and ``pose_drift`` in the
-    static recording target: a twin trained on the biased depth or drifting poses absorbs them, so
-    its residual against the sensors hardly shows them, while the recording's frames, corrected,
-    agree with each other. Found whether or not the effect was enabled."""
+    """A recording's disagreement with itself, as metrics ``artitwin compare`` can lead with (under
+    the finding's scope): the depth error at the reference depth (``self_consistency_depth_error_m``),
+    the linear drift's displacement by the last frame (``self_consistency_drift_m``) and the corner
+    fall-off of the vignetting the twin's camera model left (``self_consistency_vignetting_falloff``),
+    each with its standard error (``..._se``). These are what ``depth_scale_offset``,
+    ``pose_drift`` and ``vignetting`` target: a twin trained on biased depth, drifting poses or
+    vignetted frames absorbs them, so its residual against the sensors hardly shows them, while the
+    recording's frames, corrected, agree with each other. Found whether or not the effect was
+    enabled."""
     out = {}
     for f in findings:
         p = f.params
         if f.name == "depth_scale_offset" and "error_m" in p:
             value, se = abs(float(p["error_m"])), float(p["error_se_m"])
+        elif f.name == "vignetting" and f.target == "self-consistency":
+            value, se = abs(float(p["corner_falloff"])), float(p["corner_falloff_se"])
         elif f.name == "pose_drift" and "displacement_m" in p:
             value = float(np.linalg.norm(p["displacement_m"]))
             se = value / float(p["z_score"]) if p.get("z_score") else float("nan")
         else:
             continue
-        name = f"{STATIC_SCOPE}/{SELF_CONSISTENCY_METRICS[f.name]}"
+        name = f"{f.scope}/{SELF_CONSISTENCY_METRICS[f.name]}"
         out[name], out[name + "_se"] = value, se
     return out
 
 
 # 4: the self-consistency metrics, as diagnose.
-@stage(name="diagnose_static", version=4, config=DiagnoseConfig, output=DiagnosisReport)
+# 5: the recording's own vignetting test, as diagnose.
+@stage(name="diagnose_static", version=5, config=DiagnoseConfig, output=DiagnosisReport)
 def diagnose_static(
     capture: CaptureArtifact, prediction: ViewPrediction, config: DiagnoseConfig, pose_lag: PoseLagResult | None = None
 ) -> DiagnosisReport:
@@ -643,7 +745,8 @@ def diagnose_static(
     return diagnose_twin.fn(capture, prediction, JointSet(joints=[]), empty, config, pose_lag)
 
 
-@stage(name="diagnose_dynamic", version=4, config=DiagnoseConfig, output=DiagnosisReport)
+# 5: the recording's own vignetting test.
+@stage(name="diagnose_dynamic", version=5, config=DiagnoseConfig, output=DiagnosisReport)
 def diagnose_dynamic(
     dynamic: CaptureArtifact, prediction: ViewPrediction, config: DiagnoseConfig, pose_lag: PoseLagResult | None = None
 ) -> DiagnosisReport:
@@ -652,5 +755,8 @@ def diagnose_dynamic(
     data = _sensor_data(dynamic, prediction, config)
     section = (DYNAMIC_SCOPE, run_diagnosis(data, _effects(config), _core_config(config)), data)
     report = report_from_sections([section], title="ArtiTwin diagnosis: the dynamic recording")
+    report, vig_findings, vig_lines = _with_own_vignetting(report, DYNAMIC_SCOPE, dynamic, prediction, config)
     report = _with_positions(report, DYNAMIC_SCOPE, dynamic, prediction)
-    return _with_findings(report, DYNAMIC_SCOPE, *_lag_findings(pose_lag, DYNAMIC_SCOPE, config))
+    report = report.model_copy(update={"metrics": {**report.metrics, **self_consistency_metrics(vig_findings)}})
+    lag_findings, lag_lines = _lag_findings(pose_lag, DYNAMIC_SCOPE, config)
+    return _with_findings(report, DYNAMIC_SCOPE, vig_findings + lag_findings, vig_lines + lag_lines)

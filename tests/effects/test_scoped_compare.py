@@ -71,3 +71,25 @@ def test_a_depth_error_the_twin_absorbed_is_judged_by_the_recording_against_itse
     # A run without the metric (an older diagnosis) falls back to the depth curve.
     d = RunRecord(name="d", effects=["depth_scale_offset"], per_frame={depth: [0.02] * 20}, heldout={depth: held})
     assert comparison_targets(a, d)[0] == [("static recording, depth (depth_rms_m)", depth, "depth_scale_offset")]
+
+
+def test_the_dynamic_recordings_vignetting_is_judged_by_its_own_frames():
+    """The dynamic recording's vignetting, modelled in stage IV: compare leads with the fall-off its
+    own frames still show past the model (diagnose_dynamic's metric, not the static diagnosis's)."""
+    rgb = "diagnose/dynamic recording/rgb_rms"
+    own = "diagnose_dynamic/dynamic recording/self_consistency_vignetting_falloff"
+    held = list(range(0, 20, 5))
+
+    def rec(name, effects, falloff, se):
+        return RunRecord(name=name, effects=effects, per_frame={rgb: [0.05] * 20}, heldout={rgb: held},
+                         metrics={own: falloff, own + "_se": se})
+
+    a, b = rec("a", [], 0.347, 0.001), rec("b", ["dynamic:vignetting"], 0.02, 0.001)
+    targets, _ = comparison_targets(a, b)
+    assert targets == [("dynamic recording, agreement with itself (self_consistency_vignetting_falloff)", own,
+                        "dynamic:vignetting")]
+    lead = compare_runs(a, b, targets, []).lead[0]
+    assert "-94%" in lead and "the loop worked" in lead, lead
+    # Modelled in the static recording: the dynamic recording's own frames are not its target.
+    c = rec("c", ["static:vignetting"], 0.347, 0.001)
+    assert comparison_targets(a, c)[0][0][1] == "diagnose/static recording/rgb_rms"
