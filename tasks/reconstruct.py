@@ -117,7 +117,8 @@ def _with_poses(capture: CaptureArtifact, poses: CameraPoses) -> Capture:
 
 
 # 3: the exposure model learns per-frame gains only (no offset).
-@stage(name="reconstruct", version=3, config=ReconstructConfig, output=GaussianCheckpoint)
+# 4: the vignetting is measured from the training frames themselves and kept fixed.
+@stage(name="reconstruct", version=4, config=ReconstructConfig, output=GaussianCheckpoint)
 def reconstruct_canonical(capture: CaptureArtifact, poses: CameraPoses, config: ReconstructConfig) -> GaussianCheckpoint:
     """Train the canonical 3DGS model of the static recording with the refined ``poses``.
 

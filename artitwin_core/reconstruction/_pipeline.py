@@ -8,13 +8,14 @@ from dataclasses import dataclass, replace
 
 import numpy as np
 
-from artitwin_core.capture import Capture, downscale_rgb
+from artitwin_core._errors import InputError
+from artitwin_core.capture import Capture, downscale_rgb, estimate_vignetting
 from artitwin_core.gaussians import GaussianParams, resolve_backend
 from artitwin_core.reconstruction._config import InitConfig, ReconstructionConfig, TrainConfig, split_frames
 from artitwin_core.reconstruction._evaluate import EvalResult, evaluate_views
 from artitwin_core.reconstruction._init import init_gaussians
 from artitwin_core.reconstruction._poses import PoseRefinement, refine_poses
-from artitwin_core.reconstruction._sensor import SensorModel
+from artitwin_core.reconstruction._sensor import SensorModel, SensorParams
 from artitwin_core.reconstruction._train import TrainState, TrainViews, make_views, scene_extent, train
 
 
@@ -63,7 +64,23 @@ def start_training(
     params0 = init_gaussians(capture, world_from_camera, frames, init, config.sh_degree)
     views = make_views(capture, world_from_camera, frames, init.min_confidence, device=backend.device)
     state = TrainState.from_params(params0, scene_extent(world_from_camera[frames]), device=backend.device)
+    if "vignetting" in config.sensor_effects:
+        state.sensor = SensorParams(config.sensor_effects, views.frames, views.intrinsics, *views.size, views.distortion,
+                                    device=backend.device, vignetting=measured_vignetting(capture, world_from_camera, frames))
     return state, views, config
+
+
+def measured_vignetting(capture: Capture, world_from_camera: np.ndarray, frames: list[int]) -> tuple[float, float] | None:
+    """The camera's vignetting as the training ``frames`` themselves show it (``estimate_vignetting``:
+    the same surfaces at different image radii), ``(c1, c2)`` of the sensor model, which keeps it
+    fixed (see ``_sensor``); None when they cannot show it (too little overlap): it is then
+    learned with the Gaussians. The held-out frames are not used, as for every fitted parameter."""
+    sel = capture.select_frames(sorted(frames))
+    try:
+        est = estimate_vignetting(sel, np.asarray(world_from_camera, np.float64)[sorted(frames)])
+    except InputError:
+        return None
+    return est.gain
 
 
 def reconstruct(

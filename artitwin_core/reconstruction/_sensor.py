@@ -18,6 +18,12 @@ here, each a switch in ``TrainConfig.sensor_effects``:
   the tiny scene at 128x96, 300 steps).
 - ``vignetting``: a radial gain ``1 + c1 r^2 + c2 r^4`` on linear RGB, shared by every frame,
   ``r`` the distance from the principal point over the distance to the farthest image corner.
+  Measured from the training frames themselves when they can show it
+  (``artitwin_core.capture.estimate_vignetting``: the same surfaces recorded darker at larger
+  radii), and then kept fixed: the photometric gradient against the Gaussians is biased, as their
+  view-dependent colour trades off against the radius (on the tiny scene, 300 steps: a 0.35
+  corner fall-off learned as 0.20-0.24 whether started at 0 or at the truth, and a clean camera
+  learned as 0.08 brighter corners), while the frames agree on it to within 0.004.
 - ``depth_scale_offset``: an affine depth error of the sensor, ``measured = s * true + o``
   (metres); the Gaussians stay metric (the capture's poses fix the scale through the images).
 
@@ -199,9 +205,11 @@ class SensorParams:
 
     def __init__(
         self, effects, frames, intrinsics: np.ndarray, width: int, height: int, distortion=None,
-        device: torch.device | str | None = None,
+        device: torch.device | str | None = None, vignetting: tuple[float, float] | None = None,
     ) -> None:
         """``distortion``: the RGB lens's ``k1 k2 p1 p2 [...]`` (None: pinhole), applied to every render.
+        ``vignetting``: the vignetting's ``(c1, c2)`` as the frames themselves measured it, then
+        kept fixed (None: learned, from no fall-off).
         Every tensor lives on ``device`` (default CPU), the device of the renders it is applied to."""
         self.effects = check_sensor_effects(effects)
         self.frames = [int(f) for f in frames]
@@ -218,8 +226,10 @@ class SensorParams:
         if "exposure_white_balance" in self.effects:
             self.params["log_gain"] = torch.zeros(v, 3, device=dev)
         if "vignetting" in self.effects:
-            self.params["vignetting"] = torch.zeros(2, device=dev)
+            if vignetting is None:
+                self.params["vignetting"] = torch.zeros(2, device=dev)
             self._r2 = [torch.from_numpy(radius_sq(k, width, height).astype(np.float32)).to(dev) for k in intrinsics]
+        self.fixed_vignetting = None if vignetting is None else torch.tensor(vignetting, dtype=torch.float32, device=dev)
         if "depth_scale_offset" in self.effects:
             self.params["depth_affine"] = torch.tensor([1.0, 0.0], device=dev)
         self._grids: dict[int, tuple[torch.Tensor, torch.Tensor]] = {}
@@ -229,7 +239,7 @@ class SensorParams:
         self.exp_avg_sq = {k: torch.zeros_like(p) for k, p in self.params.items()}
 
     def __bool__(self) -> bool:
-        return bool(self.params) or self.distortion is not None
+        return bool(self.params) or self.distortion is not None or self.fixed_vignetting is not None
 
     def distort(self, render: torch.Tensor, view: int) -> torch.Tensor:
         """The pinhole render ``[H, W, C]`` as the lens images it (unchanged for a pinhole lens)."""
@@ -253,13 +263,13 @@ class SensorParams:
     def rgb(self, render: torch.Tensor, view: int) -> torch.Tensor:
         """The recorded sRGB ``[H, W, 3]`` of a rendered one at training view ``view``."""
         render = self.distort(render, view)
-        if "log_gain" not in self.params and "vignetting" not in self.params:
+        c = self.params.get("vignetting", self.fixed_vignetting)
+        if "log_gain" not in self.params and c is None:
             return render
         lin = srgb_to_linear_t(render)
         if "log_gain" in self.params and view != 0:  # view 0 is the reference
             lin = lin * torch.exp(self.params["log_gain"][view])
-        if "vignetting" in self.params:
-            c = self.params["vignetting"]
+        if c is not None:
             r2 = self._r2[view]
             lin = lin * (1.0 + c[0] * r2 + c[1] * r2 * r2)[..., None]
         return linear_to_srgb_t(lin)
@@ -292,7 +302,7 @@ class SensorParams:
             lg[0] = 0.0  # the reference view
             log_gain, offset = lg[order], np.zeros_like(lg)
         da = p.get("depth_affine", np.array([1.0, 0.0]))
-        vig = p.get("vignetting")
+        vig = p.get("vignetting", None if self.fixed_vignetting is None else self.fixed_vignetting.cpu().numpy())
         k = None if self.distortion is None else self.distortion.cpu().numpy()
         return SensorModel(
             effects=self.effects,
