@@ -662,7 +662,7 @@ def _with_findings(report: DiagnosisReport, scope: str, findings: list[EffectFin
 
 
 # 10: the self-consistency metrics (self_consistency_metrics).
-# 11: the recording's own vignetting test.
+# 11: the recording's own vignetting test; joint effects wait for a depth error to be modelled.
 @stage(name="diagnose", version=11, config=DiagnoseConfig, output=DiagnosisReport)
 def diagnose_twin(
     capture: CaptureArtifact,
@@ -683,11 +683,44 @@ def diagnose_twin(
             findings = [f for f in findings if f.name in config.effects]
             lines = [line for line in lines if any(f"--effect {f.name}" in line for f in findings)]
     report, vig_findings, vig_lines = _with_own_vignetting(report, STATIC_SCOPE, capture, prediction, config)
+    report, deferred = _defer_joint_effects(report, findings)
     lag_findings, lag_lines = _lag_findings(pose_lag, STATIC_SCOPE, config)
     report = _with_positions(report, STATIC_SCOPE, capture, prediction)
     findings += vig_findings
     report = report.model_copy(update={"metrics": {**report.metrics, **self_consistency_metrics(findings)}})
-    return _with_findings(report, STATIC_SCOPE, findings + lag_findings, lines + vig_lines + lag_lines)
+    return _with_findings(report, STATIC_SCOPE, findings + lag_findings, lines + vig_lines + lag_lines + deferred)
+
+
+def _defer_joint_effects(report: DiagnosisReport, findings: list[EffectFinding]) -> tuple[DiagnosisReport, list[str]]:
+    """``report`` with its joint effects (the joint-tracks target) no longer enabled while the
+    static recording's own frames show a depth error (``findings``: ``self_consistency``'s, the
+    ``depth_scale_offset`` one enabled), and a line per joint saying why.
+
+    The joints' tracks are lifted from the sensor's depth. With the depth off by a scale and an
+    offset, a point on a moving part is misplaced along its camera ray by an amount that changes as
+    the part turns toward or away from the camera: a rise or a tilt the joint does not have (a
+    depth error in both recordings asked for a screw joint no door had). The depth is modelled
+    first; the rerun's diagnosis judges the joints on corrected tracks."""
+    depth = next((f for f in findings if f.name == "depth_scale_offset" and f.enabled), None)
+    if depth is None:
+        return report, []
+    recordings = {STATIC_SCOPE, DYNAMIC_SCOPE}
+    held = [f for f in report.findings if f.enabled and f.target == "joint-tracks" and f.scope not in recordings]
+    if not held:
+        return report, []
+    entries = {f"{f.scope}/{f.name}" for f in held}
+    findings_out = [f.model_copy(update={"enabled": False}) if any(f is h for h in held) else f for f in report.findings]
+    enabled = [e for e in report.enabled if e not in entries]
+    error_mm = 1e3 * float(depth.params["error_m"])
+    lines = [
+        f"{f.scope}: {f.name} is not enabled yet: the joint's tracks were lifted from depth that the static recording's "
+        f"own frames say is {error_mm:+.0f} mm off at {float(depth.params['reference_depth_m']):.1f} m, which bends "
+        "tracks as a joint effect would. Model the depth first (--effect depth_scale_offset); the rerun's diagnosis "
+        "judges the joint on corrected tracks."
+        for f in held
+    ]
+    metrics = {**report.metrics, "enabled_count": float(len(enabled))}
+    return report.model_copy(update={"findings": findings_out, "enabled": enabled, "metrics": metrics}), lines
 
 
 def _with_own_vignetting(
