@@ -453,7 +453,19 @@ def report_from_sections(sections: list[tuple[str, Diagnosis, ResidualData]], ti
 _SELF_TOL_M = 1e-4
 
 
-def self_consistency(capture: CaptureArtifact, config: DiagnoseConfig) -> tuple[list[EffectFinding], list[str]]:
+def _held_by_lag(timestamps: np.ndarray, pose_lag: PoseLagResult | None) -> np.ndarray:
+    """``[T]`` the frames whose pose a lag correction could not read off the recorded trajectory
+    (their time plus the lag falls outside it): they keep its end pose, up to a lag's motion off."""
+    ts = np.asarray(timestamps, np.float64)
+    if pose_lag is None or not pose_lag.applied or not pose_lag.lag_s:
+        return np.zeros(ts.shape, bool)
+    at = ts + float(pose_lag.lag_s)
+    return (at < ts[0]) | (at > ts[-1])
+
+
+def self_consistency(
+    capture: CaptureArtifact, config: DiagnoseConfig, pose_lag: PoseLagResult | None = None
+) -> tuple[list[EffectFinding], list[str]]:
     """The static recording against itself, without the twin: findings for ``pose_drift`` and
     ``depth_scale_offset`` and the conclusion's lines.
 
@@ -468,6 +480,11 @@ def self_consistency(capture: CaptureArtifact, config: DiagnoseConfig) -> tuple[
     enabled (the gate is its significance test). A recording whose effects are already modelled
     (the corrected capture) finds neither. Depth maps of fewer than
     ``config.self_consistency_min_depth_pixels`` pixels are not tested (a note says so).
+
+    With ``pose_lag`` applied, the frames at the recording's end whose corrected time the
+    recorded trajectory does not reach are left out: they keep its end pose, and at phone frame
+    rates their few centimetres of pose error faked a depth error past the gate
+    (``bench/bench_lag_interpolation.py``).
     """
     _, dh, dw = capture.depth.shape
     if dh * dw < config.self_consistency_min_depth_pixels:
@@ -476,6 +493,9 @@ def self_consistency(capture: CaptureArtifact, config: DiagnoseConfig) -> tuple[
             f"fewer than {config.self_consistency_min_depth_pixels} pixels, on which the test cannot be trusted."
         ]
     cap = to_core(Capture, capture)
+    held = _held_by_lag(cap.timestamps, pose_lag)
+    if held.any():
+        cap = cap.select_frames(np.nonzero(~held)[0])
     gate = core_kwargs(DriftSignificance.why_not, PoseDriftConfig())
     try:
         joint = estimate_depth_calibration(cap, config=CoreCalibrationConfig(pose_drift=True, step_tolerance_m=_SELF_TOL_M),
@@ -662,7 +682,8 @@ def _with_findings(report: DiagnosisReport, scope: str, findings: list[EffectFin
 
 
 # 10: the self-consistency metrics (self_consistency_metrics).
-# 11: the recording's own vignetting test; joint effects wait for a depth error to be modelled.
+# 11: the recording's own vignetting test; joint effects wait for a depth error to be modelled;
+# the self-consistency test leaves out the frames a lag correction could not reach.
 @stage(name="diagnose", version=11, config=DiagnoseConfig, output=DiagnosisReport)
 def diagnose_twin(
     capture: CaptureArtifact,
@@ -678,7 +699,7 @@ def diagnose_twin(
     report = report_from_sections(diagnose_sections(capture, prediction, joints, trajectories, config))
     findings, lines = [], []
     if config.self_consistency:
-        findings, lines = self_consistency(capture, config)
+        findings, lines = self_consistency(capture, config, pose_lag)
         if config.effects:  # restricted to named effects
             findings = [f for f in findings if f.name in config.effects]
             lines = [line for line in lines if any(f"--effect {f.name}" in line for f in findings)]
