@@ -48,16 +48,21 @@ def test_noise_is_judged_on_the_heldout_frames():
     assert n == 4 and not beyond and mb > ma
 
 
+def _own_record(name, effects, curve, level, metric, value, se):
+    """A run with a flat per-frame ``curve`` at ``level`` and the scalar ``metric`` (a recording's
+    disagreement with itself) at ``value`` with standard error ``se``."""
+    return RunRecord(name=name, effects=effects, per_frame={curve: [level] * 20}, heldout={curve: list(range(0, 20, 5))},
+                     metrics={metric: value, metric + "_se": se})
+
+
 def test_a_depth_error_the_twin_absorbed_is_judged_by_the_recording_against_itself():
     """A twin trained on biased depth absorbs it: its depth curve does not move when the bias is
     modelled. The static recording's disagreement with itself does, and compare leads with it."""
     depth = "diagnose/static recording/depth_rms_m"
     own = "diagnose/static recording/self_consistency_depth_error_m"
-    held = list(range(0, 20, 5))
 
     def rec(name, effects, error_m, se_m):
-        return RunRecord(name=name, effects=effects, per_frame={depth: [0.02] * 20}, heldout={depth: held},
-                         metrics={own: error_m, own + "_se": se_m})
+        return _own_record(name, effects, depth, 0.02, own, error_m, se_m)
 
     a = rec("a", [], 0.0685, 0.0004)
     b = rec("b", ["depth_scale_offset"], 0.0011, 0.0004)
@@ -69,7 +74,7 @@ def test_a_depth_error_the_twin_absorbed_is_judged_by_the_recording_against_itse
     c = rec("c", ["depth_scale_offset"], 0.0675, 0.0004)
     assert "no change beyond noise" in compare_runs(a, c, *comparison_targets(a, c)).lead[0]
     # A run without the metric (an older diagnosis) falls back to the depth curve.
-    d = RunRecord(name="d", effects=["depth_scale_offset"], per_frame={depth: [0.02] * 20}, heldout={depth: held})
+    d = RunRecord(name="d", effects=["depth_scale_offset"], per_frame={depth: [0.02] * 20}, heldout={depth: [0, 5, 10, 15]})
     assert comparison_targets(a, d)[0] == [("static recording, depth (depth_rms_m)", depth, "depth_scale_offset")]
 
 
@@ -78,11 +83,9 @@ def test_the_dynamic_recordings_vignetting_is_judged_by_its_own_frames():
     own frames still show past the model (diagnose_dynamic's metric, not the static diagnosis's)."""
     rgb = "diagnose/dynamic recording/rgb_rms"
     own = "diagnose_dynamic/dynamic recording/self_consistency_vignetting_falloff"
-    held = list(range(0, 20, 5))
 
     def rec(name, effects, falloff, se):
-        return RunRecord(name=name, effects=effects, per_frame={rgb: [0.05] * 20}, heldout={rgb: held},
-                         metrics={own: falloff, own + "_se": se})
+        return _own_record(name, effects, rgb, 0.05, own, falloff, se)
 
     a, b = rec("a", [], 0.347, 0.001), rec("b", ["dynamic:vignetting"], 0.02, 0.001)
     targets, _ = comparison_targets(a, b)
