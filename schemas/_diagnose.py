@@ -101,6 +101,12 @@ class DiagnoseConfig(StageConfig):
         "its standard errors are too small to gate on (64x48 maps: a depth error flagged in 4 of 20 clean recordings, "
         "at up to 6.5 standard errors; 128x96: none of 20). Phone depth maps are 256x192 or larger.",
     )
+    max_lag_interpolation_s: float = Field(
+        default=0.1, ge=0,
+        description="After a pose-lag correction, the self-consistency test reports a depth error but does not enable "
+        "depth_scale_offset when the frames are more than this many seconds apart: poses interpolated that far between "
+        "recorded ones fake a depth error (bench/bench_lag_interpolation.py: -15 mm at 1.8 m, 0.27 s apart).",
+    )
     min_vignetting_falloff: float = Field(
         default=0.05, ge=0, le=1,
         description="The self-consistency test of each recording enables vignetting when the corner fall-off its own "

@@ -98,6 +98,7 @@ config_map(
         "self_consistency": "whether the stage also tests the static recording against itself",
         "min_depth_error_m": "the self-consistency test's gate on the depth error, applied by the stage",
         "min_vignetting_falloff": "the vignetting self-consistency test's gate, applied by the stage",
+        "max_lag_interpolation_s": "the self-consistency test's depth gate after a lag correction, applied by the stage",
         "self_consistency_min_depth_pixels": "the stage skips the self-consistency test on coarser depth maps",
     },
 )
@@ -484,7 +485,10 @@ def self_consistency(
     With ``pose_lag`` applied, the frames at the recording's end whose corrected time the
     recorded trajectory does not reach are left out: they keep its end pose, and at phone frame
     rates their few centimetres of pose error faked a depth error past the gate
-    (``bench/bench_lag_interpolation.py``).
+    (``bench/bench_lag_interpolation.py``). With frames more than
+    ``config.max_lag_interpolation_s`` apart the corrected poses are interpolated far between
+    recorded ones, which fakes a depth error too: the depth finding is then reported
+    (significant) but not enabled, and the line says why.
     """
     _, dh, dw = capture.depth.shape
     if dh * dw < config.self_consistency_min_depth_pixels:
@@ -510,9 +514,14 @@ def self_consistency(
     depth = estimate_depth_calibration(cap, world_from_camera=poses, config=depth_only) if not why else plain_recorded
     z_ref = depth.reference_depth_m
     error = (depth.scale - 1.0) * z_ref + depth.offset_m
-    depth_on = (
+    depth_seen = (
         abs(error) >= config.min_depth_error_m and abs(error) >= 3.0 * depth.error_se_m and depth.error_se_m <= 0.01
     )
+    # Poses a lag correction read between frames far apart carry the interpolation's error, which
+    # fakes a depth error of this size (bench_lag_interpolation: -15 mm at 1.8 m, 0.27 s apart).
+    spacing = float(np.median(np.diff(cap.timestamps))) if cap.num_frames > 1 else 0.0
+    interpolated = bool(pose_lag is not None and pose_lag.applied and spacing > config.max_lag_interpolation_s)
+    depth_on = depth_seen and not interpolated
 
     def explained(before: float, after: float) -> float:
         return float(1.0 - (after / before) ** 2) if before > 0 else 0.0
@@ -535,7 +544,7 @@ def self_consistency(
             name="depth_scale_offset", scope=STATIC_SCOPE, target="self-consistency",
             explained_frac=explained(depth.initial_residual_m, depth.residual_m),
             energy_before=depth.initial_residual_m**2, energy_after=depth.residual_m**2,
-            significant=bool(depth_on), enabled=bool(depth_on),
+            significant=bool(depth_seen), enabled=bool(depth_on),
             params=_json_safe({
                 "scale": depth.scale, "offset_m": depth.offset_m, "error_m": error, "error_se_m": depth.error_se_m,
                 "reference_depth_m": z_ref,
@@ -549,11 +558,17 @@ def self_consistency(
             f"last frame at {z_ref:.1f} m ahead of the first camera ({sig.z_score:.0f} standard errors, both halves of "
             "the recording alike). Model it: --effect pose_drift."
         )
-    if depth_on:
-        lines.append(
+    if depth_seen:
+        seen = (
             f"{STATIC_SCOPE}: its own frames agree only with its depth corrected: measured = {depth.scale:.4f} z "
             f"{1e3 * depth.offset_m:+.1f} mm, {1e3 * error:+.1f} mm at {z_ref:.1f} m (standard error "
-            f"{1e3 * depth.error_se_m:.1f} mm). Model it: --effect depth_scale_offset."
+            f"{1e3 * depth.error_se_m:.1f} mm)."
+        )
+        lines.append(
+            f"{seen} Model it: --effect depth_scale_offset." if depth_on else
+            f"{seen} Not enabled: its poses were corrected for a lag by reading them between frames {spacing:.2f} s "
+            "apart, and that interpolation fakes a depth error of this size. A recording whose frames are kept closer "
+            "together (a higher ingest max_frames) can tell; --effect depth_scale_offset models it anyway."
         )
     return findings, lines
 
@@ -684,7 +699,8 @@ def _with_findings(report: DiagnosisReport, scope: str, findings: list[EffectFin
 # 10: the self-consistency metrics (self_consistency_metrics).
 # 11: the recording's own vignetting test; joint effects wait for a depth error to be modelled;
 # the self-consistency test leaves out the frames a lag correction could not reach.
-@stage(name="diagnose", version=11, config=DiagnoseConfig, output=DiagnosisReport)
+# 12: after a lag correction between frames far apart, the depth error is reported, not enabled.
+@stage(name="diagnose", version=12, config=DiagnoseConfig, output=DiagnosisReport)
 def diagnose_twin(
     capture: CaptureArtifact,
     prediction: ViewPrediction,
@@ -786,7 +802,8 @@ def self_consistency_metrics(findings: list[EffectFinding]) -> dict[str, float]:
 
 # 4: the self-consistency metrics, as diagnose.
 # 5: the recording's own vignetting test, as diagnose.
-@stage(name="diagnose_static", version=5, config=DiagnoseConfig, output=DiagnosisReport)
+# 6: as diagnose 12.
+@stage(name="diagnose_static", version=6, config=DiagnoseConfig, output=DiagnosisReport)
 def diagnose_static(
     capture: CaptureArtifact, prediction: ViewPrediction, config: DiagnoseConfig, pose_lag: PoseLagResult | None = None
 ) -> DiagnosisReport:

@@ -20,14 +20,20 @@ from tasks.diagnose import _held_by_lag, self_consistency
 LAG_S = 0.067  # two frames of a 30 fps stream, here one frame interval (every second frame kept)
 
 
-@pytest.fixture(scope="module")
-def corrected():
+def _corrected(stride: int) -> CaptureArtifact:
+    """The tiny door at twice its size, 16 static frames (every ``stride``-th of 30 fps), its
+    poses ``LAG_S`` late and corrected with the true lag; the depth is exact."""
     tiny = BENCHMARK_SCENES["tiny"]
-    spec = replace(tiny, seed=0, static_frames=16, static_stride=2, rgb_size=(256, 192), depth_size=(128, 96),
+    spec = replace(tiny, seed=0, static_frames=16, static_stride=stride, rgb_size=(256, 192), depth_size=(128, 96),
                    effects=(("pose_lag", {"seconds": LAG_S, "recordings": "static"}),))
     cap = generate_scene(spec).static
     fixed = dataclasses.replace(cap, world_from_camera=correct_pose_lag(cap.world_from_camera, cap.timestamps, LAG_S))
     return to_artifact(CaptureArtifact, fixed)
+
+
+@pytest.fixture(scope="module")
+def corrected():
+    return _corrected(2)
 
 
 def _depth_finding(findings):
@@ -46,3 +52,20 @@ def test_frames_holding_the_end_pose_are_left_out(corrected):
     without = _depth_finding(self_consistency(corrected, DiagnoseConfig(), lag)[0])
     assert not without.enabled and abs(without.params["error_m"]) < 0.005, without.params
     assert np.isfinite(without.params["error_se_m"])
+
+
+def test_a_depth_error_from_poses_interpolated_far_apart_is_reported_not_enabled():
+    """Frames 0.27 s apart: the spline between them leaves the corrected poses about a millimetre
+    off, which fakes -15 mm at 1.8 m (bench_lag_interpolation); the test cannot tell it from a
+    sensor's error, so it says so instead of asking for the depth to be modelled."""
+    capture = _corrected(8)
+    lag = PoseLagResult.model_construct(estimated=True, applied=True, lag_s=LAG_S)
+    plain = _depth_finding(self_consistency(capture, DiagnoseConfig())[0])
+    assert plain.enabled and plain.params["error_m"] < -0.01, plain.params  # the fake, enabled without the lag
+    findings, lines = self_consistency(capture, DiagnoseConfig(), lag)
+    found = _depth_finding(findings)
+    assert found.significant and not found.enabled, found.params
+    assert any("Not enabled: its poses were corrected for a lag" in line and "0.27 s apart" in line for line in lines)
+    # Frames close enough together are judged as before.
+    close = _depth_finding(self_consistency(capture, DiagnoseConfig(max_lag_interpolation_s=0.5), lag)[0])
+    assert close.enabled
