@@ -12,10 +12,7 @@ from artitwin_core.diagnostics._runs import RunComparison, RunRecord, compare_ru
 from artitwin_core.reconstruction import split_frames
 from infra.store import ArtifactStore
 from schemas import DiagnosisReport, JointSet
-from schemas._diagnose import SELF_CONSISTENCY_METRICS
-
-STATIC_SCOPE = "static recording"
-DYNAMIC_SCOPE = "dynamic recording"
+from schemas._diagnose import DYNAMIC_SCOPE, SELF_CONSISTENCY_METRICS, STATIC_SCOPE
 
 
 def read_summary(path: str | Path) -> tuple[Path, dict[str, Any]]:

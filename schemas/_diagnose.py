@@ -168,6 +168,10 @@ class EffectFinding(Artifact):
     )
 
 
+# The diagnosis's scopes of the two recordings (a joint's scope is its name, ``joint_0``).
+STATIC_SCOPE = "static recording"
+DYNAMIC_SCOPE = "dynamic recording"
+
 # The diagnosis's metrics of a recording's disagreement with itself (under its scope, "static
 # recording/" or "dynamic recording/", each with a standard error "..._se"), by the effect whose
 # model removes it: a twin trained on biased depth, drifting poses or vignetted frames absorbs

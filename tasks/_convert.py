@@ -15,8 +15,11 @@ from __future__ import annotations
 
 import dataclasses
 import inspect
+import math
 from collections.abc import Callable, Mapping
 from typing import Any, TypeVar
+
+import numpy as np
 
 from schemas import Artifact, StageConfig
 
@@ -218,3 +221,20 @@ def _names(fields: str | Mapping[str, str]) -> dict[str, str]:
 
 def _name(home: Home) -> str:
     return getattr(home, "__qualname__", repr(home))
+
+
+def json_safe(value):
+    """Fitted parameters as JSON the store can round-trip (NaN and inf become None)."""
+    if isinstance(value, dict):
+        return {str(k): json_safe(v) for k, v in value.items()}
+    if isinstance(value, np.ndarray):
+        return json_safe(value.tolist())
+    if isinstance(value, list | tuple):
+        return [json_safe(v) for v in value]
+    if isinstance(value, bool | np.bool_):
+        return bool(value)
+    if isinstance(value, int | np.integer):
+        return int(value)
+    if isinstance(value, float | np.floating):
+        return float(value) if math.isfinite(value) else None
+    return value if isinstance(value, str) or value is None else str(value)

@@ -5,7 +5,7 @@ depth bias in both recordings of a door asked for a screw joint)."""
 from __future__ import annotations
 
 from schemas._diagnose import DiagnosisReport, EffectFinding
-from tasks.diagnose import STATIC_SCOPE, _defer_joint_effects
+from tasks._consistency import STATIC_SCOPE, _defer_joint_effects
 
 
 def _finding(name, scope, target, enabled=True, **params):

@@ -13,7 +13,7 @@ from artitwin_core.synth import BENCHMARK_SCENES, generate_scene
 from schemas import CaptureArtifact
 from schemas._diagnose import DiagnoseConfig, DiagnosisReport, EffectFinding
 from tasks import to_artifact
-from tasks.diagnose import (
+from tasks._consistency import (
     DYNAMIC_SCOPE,
     STATIC_SCOPE,
     _overrule_twin_vignetting,

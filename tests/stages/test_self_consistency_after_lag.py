@@ -15,7 +15,7 @@ from artitwin_core.synth import BENCHMARK_SCENES, generate_scene
 from schemas import CaptureArtifact, PoseLagResult
 from schemas._diagnose import DiagnoseConfig
 from tasks import to_artifact
-from tasks.diagnose import _held_by_lag, self_consistency
+from tasks._consistency import _held_by_lag, self_consistency
 
 LAG_S = 0.067  # two frames of a 30 fps stream, here one frame interval (every second frame kept)
 
