@@ -32,7 +32,7 @@ from tasks._convert import core_kwargs, json_safe, to_core
 _SELF_TOL_M = 1e-4
 
 
-def _held_by_lag(timestamps: np.ndarray, pose_lag: PoseLagResult | None) -> np.ndarray:
+def held_by_lag(timestamps: np.ndarray, pose_lag: PoseLagResult | None) -> np.ndarray:
     """``[T]`` the frames whose pose a lag correction could not read off the recorded trajectory
     (their time plus the lag falls outside it): they keep its end pose, up to a lag's motion off."""
     ts = np.asarray(timestamps, np.float64)
@@ -75,7 +75,7 @@ def self_consistency(
             f"fewer than {config.self_consistency_min_depth_pixels} pixels, on which the test cannot be trusted."
         ]
     cap = to_core(Capture, capture)
-    held = _held_by_lag(cap.timestamps, pose_lag)
+    held = held_by_lag(cap.timestamps, pose_lag)
     if held.any():
         cap = cap.select_frames(np.nonzero(~held)[0])
     gate = core_kwargs(DriftSignificance.why_not, PoseDriftConfig())
@@ -190,7 +190,7 @@ def vignetting_consistency(
     return [finding], lines
 
 
-def _overrule_twin_vignetting(report: DiagnosisReport, scope: str, own: list[EffectFinding]) -> tuple[DiagnosisReport, list[str]]:
+def overrule_twin_vignetting(report: DiagnosisReport, scope: str, own: list[EffectFinding]) -> tuple[DiagnosisReport, list[str]]:
     """``report`` with its twin-based ``vignetting`` finding in ``scope`` no longer enabled when
     the recording's own frames (``own``, :func:`vignetting_consistency`) found none: the radial
     pattern in the twin's residual is then the twin's, carried over from the other recording's
@@ -214,7 +214,7 @@ def _overrule_twin_vignetting(report: DiagnosisReport, scope: str, own: list[Eff
     return report.model_copy(update={"findings": findings, "enabled": enabled, "metrics": metrics}), [line]
 
 
-def _defer_joint_effects(report: DiagnosisReport, findings: list[EffectFinding]) -> tuple[DiagnosisReport, list[str]]:
+def defer_joint_effects(report: DiagnosisReport, findings: list[EffectFinding]) -> tuple[DiagnosisReport, list[str]]:
     """``report`` with its joint effects (the joint-tracks target) no longer enabled while the
     static recording's own frames show a depth error (``findings``: ``self_consistency``'s, the
     ``depth_scale_offset`` one enabled), and a line per joint saying why.
@@ -246,7 +246,7 @@ def _defer_joint_effects(report: DiagnosisReport, findings: list[EffectFinding])
     return report.model_copy(update={"findings": findings_out, "enabled": enabled, "metrics": metrics}), lines
 
 
-def _with_own_vignetting(
+def with_own_vignetting(
     report: DiagnosisReport, scope: str, capture: CaptureArtifact, prediction: ViewPrediction, config: DiagnoseConfig
 ) -> tuple[DiagnosisReport, list[EffectFinding], list[str]]:
     """The recording's own vignetting test (``config.self_consistency``, vignetting among the
@@ -255,7 +255,7 @@ def _with_own_vignetting(
     if not config.self_consistency or (config.effects and "vignetting" not in config.effects):
         return report, [], []
     findings, lines = vignetting_consistency(capture, scope, config, prediction.vignetting)
-    report, overruled = _overrule_twin_vignetting(report, scope, findings)
+    report, overruled = overrule_twin_vignetting(report, scope, findings)
     return report, findings, lines + overruled
 
 

@@ -22,10 +22,7 @@ from PIL import Image
 
 from artitwin_core import InputError, progress
 from artitwin_core.articulation import TwinRenderer
-from artitwin_core.capture import (
-    Capture,
-    downscale_rgb,
-)
+from artitwin_core.capture import Capture, downscale_rgb
 from artitwin_core.diagnostics import DiagnoseConfig as CoreDiagnoseConfig
 from artitwin_core.diagnostics import (
     Diagnosis,
@@ -64,10 +61,10 @@ from schemas._diagnose import (
     ViewPrediction,
 )
 from tasks._consistency import (
-    _defer_joint_effects,
-    _with_own_vignetting,
+    defer_joint_effects,
     self_consistency,
     self_consistency_metrics,
+    with_own_vignetting,
 )
 from tasks._convert import config_map, core_kwargs, json_safe, to_core, to_core_config
 from tasks._stage import stage
@@ -514,8 +511,8 @@ def diagnose_twin(
         if config.effects:  # restricted to named effects
             findings = [f for f in findings if f.name in config.effects]
             lines = [line for line in lines if any(f"--effect {f.name}" in line for f in findings)]
-    report, vig_findings, vig_lines = _with_own_vignetting(report, STATIC_SCOPE, capture, prediction, config)
-    report, deferred = _defer_joint_effects(report, findings)
+    report, vig_findings, vig_lines = with_own_vignetting(report, STATIC_SCOPE, capture, prediction, config)
+    report, deferred = defer_joint_effects(report, findings)
     lag_findings, lag_lines = _lag_findings(pose_lag, STATIC_SCOPE, config)
     report = _with_positions(report, STATIC_SCOPE, capture, prediction)
     findings += vig_findings
@@ -549,7 +546,7 @@ def diagnose_dynamic(
     data = _sensor_data(dynamic, prediction, config)
     section = (DYNAMIC_SCOPE, run_diagnosis(data, _effects(config), _core_config(config)), data)
     report = report_from_sections([section], title="ArtiTwin diagnosis: the dynamic recording")
-    report, vig_findings, vig_lines = _with_own_vignetting(report, DYNAMIC_SCOPE, dynamic, prediction, config)
+    report, vig_findings, vig_lines = with_own_vignetting(report, DYNAMIC_SCOPE, dynamic, prediction, config)
     report = _with_positions(report, DYNAMIC_SCOPE, dynamic, prediction)
     report = report.model_copy(update={"metrics": {**report.metrics, **self_consistency_metrics(vig_findings)}})
     lag_findings, lag_lines = _lag_findings(pose_lag, DYNAMIC_SCOPE, config)

@@ -5,7 +5,7 @@ depth bias in both recordings of a door asked for a screw joint)."""
 from __future__ import annotations
 
 from schemas._diagnose import DiagnosisReport, EffectFinding
-from tasks._consistency import STATIC_SCOPE, _defer_joint_effects
+from tasks._consistency import STATIC_SCOPE, defer_joint_effects
 
 
 def _finding(name, scope, target, enabled=True, **params):
@@ -22,7 +22,7 @@ def _report():
 
 def test_joint_effects_wait_for_a_depth_error_the_recording_shows():
     depth = _finding("depth_scale_offset", STATIC_SCOPE, "self-consistency", error_m=0.0685, reference_depth_m=1.89)
-    out, lines = _defer_joint_effects(_report(), [depth])
+    out, lines = defer_joint_effects(_report(), [depth])
     assert out.enabled == [f"{STATIC_SCOPE}/depth_noise"] and out.metrics["enabled_count"] == 1.0
     screw = next(f for f in out.findings if f.name == "screw_joint")
     assert not screw.enabled and screw.significant  # still reported, not asked for
@@ -33,5 +33,5 @@ def test_joint_effects_wait_for_a_depth_error_the_recording_shows():
 def test_without_a_depth_error_the_joint_effects_stand():
     for depth in ([], [_finding("depth_scale_offset", STATIC_SCOPE, "self-consistency", False, error_m=0.001,
                                 reference_depth_m=1.9)]):
-        out, lines = _defer_joint_effects(_report(), depth)
+        out, lines = defer_joint_effects(_report(), depth)
         assert "joint_0/screw_joint" in out.enabled and lines == []

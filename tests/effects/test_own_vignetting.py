@@ -16,7 +16,7 @@ from tasks import to_artifact
 from tasks._consistency import (
     DYNAMIC_SCOPE,
     STATIC_SCOPE,
-    _overrule_twin_vignetting,
+    overrule_twin_vignetting,
     self_consistency_metrics,
     vignetting_consistency,
 )
@@ -62,7 +62,7 @@ def test_a_radial_residual_the_recordings_own_frames_do_not_show_is_not_enabled(
     report = DiagnosisReport(findings=[_twin_finding(DYNAMIC_SCOPE)],
                              enabled=[f"{DYNAMIC_SCOPE}/vignetting"], metrics={"enabled_count": 1.0})
     own, _ = vignetting_consistency(dynamic, DYNAMIC_SCOPE, DiagnoseConfig())
-    out, lines = _overrule_twin_vignetting(report, DYNAMIC_SCOPE, own)
+    out, lines = overrule_twin_vignetting(report, DYNAMIC_SCOPE, own)
     assert out.enabled == [] and out.metrics["enabled_count"] == 0.0
     assert not out.findings[0].enabled and out.findings[0].significant  # still reported, no longer asked for
     assert len(lines) == 1 and "its own frames show no vignetting" in lines[0]
@@ -70,5 +70,5 @@ def test_a_radial_residual_the_recordings_own_frames_do_not_show_is_not_enabled(
     static, _ = static_only
     report = report.model_copy(update={"findings": [_twin_finding(STATIC_SCOPE)], "enabled": [f"{STATIC_SCOPE}/vignetting"]})
     own, _ = vignetting_consistency(static, STATIC_SCOPE, DiagnoseConfig())
-    out, lines = _overrule_twin_vignetting(report, STATIC_SCOPE, own)
+    out, lines = overrule_twin_vignetting(report, STATIC_SCOPE, own)
     assert out.enabled == [f"{STATIC_SCOPE}/vignetting"] and out.findings[0].enabled and lines == []

@@ -15,7 +15,7 @@ from artitwin_core.synth import BENCHMARK_SCENES, generate_scene
 from schemas import CaptureArtifact, PoseLagResult
 from schemas._diagnose import DiagnoseConfig
 from tasks import to_artifact
-from tasks._consistency import _held_by_lag, self_consistency
+from tasks._consistency import held_by_lag, self_consistency
 
 LAG_S = 0.067  # two frames of a 30 fps stream, here one frame interval (every second frame kept)
 
@@ -42,9 +42,9 @@ def _depth_finding(findings):
 
 def test_frames_holding_the_end_pose_are_left_out(corrected):
     lag = PoseLagResult.model_construct(estimated=True, applied=True, lag_s=LAG_S)
-    held = _held_by_lag(corrected.timestamps, lag)
+    held = held_by_lag(corrected.timestamps, lag)
     assert held.tolist() == [False] * 14 + [True] * 2
-    assert not _held_by_lag(corrected.timestamps, lag.model_copy(update={"applied": False})).any()
+    assert not held_by_lag(corrected.timestamps, lag.model_copy(update={"applied": False})).any()
     # Measured (bench/bench_lag_interpolation.py): with them, +23 mm at 1.8 m, 3.2 standard
     # errors, past the gate; without them +0.4 +- 2.6 mm.
     with_them = _depth_finding(self_consistency(corrected, DiagnoseConfig())[0])
