@@ -22,7 +22,7 @@ from artitwin_core.capture._common import scale_intrinsics
 from artitwin_core.capture._config import VignettingConfig
 from artitwin_core.capture._drift import block_jackknife_cov
 from artitwin_core.capture._types import Capture
-from artitwin_core.geometry import pixel_rays
+from artitwin_core.geometry import corner_radius_sq, pixel_rays, project
 
 
 @dataclass(frozen=True)
@@ -55,13 +55,6 @@ def _log_to_poly(c1: float, c2: float) -> tuple[float, float]:
     t = np.linspace(0.0, 1.0, 101)
     ab, *_ = np.linalg.lstsq(np.stack([t, t * t], 1), np.exp(c1 * t + c2 * t * t) - 1.0, rcond=None)
     return float(ab[0]), float(ab[1])
-
-
-def _radius_sq(u: np.ndarray, v: np.ndarray, k: np.ndarray, width: int, height: int) -> np.ndarray:
-    """Squared radius of pixels ``(u, v)`` over the farthest corner's (as the sensor models')."""
-    cx, cy = float(k[2]), float(k[3])
-    r2max = max((x - cx) ** 2 + (y - cy) ** 2 for x, y in ((0, 0), (width - 1, 0), (0, height - 1), (width - 1, height - 1)))
-    return ((u - cx) ** 2 + (v - cy) ** 2) / r2max
 
 
 def _bilinear(img: np.ndarray, u: np.ndarray, v: np.ndarray) -> np.ndarray:
@@ -115,12 +108,10 @@ def _pair_samples(frames: _Frames, poses: np.ndarray, i: int, j: int, modelled: 
     world = x_i @ poses[i][:3, :3].T + poses[i][:3, 3]
     x_j = (world - poses[j][:3, 3]) @ poses[j][:3, :3]
     ki, kj = frames.k[i], frames.k[j]
-    with np.errstate(divide="ignore", invalid="ignore"):
-        ui, vi = ki[0] * x_i[:, 0] / x_i[:, 2] + ki[2], ki[1] * x_i[:, 1] / x_i[:, 2] + ki[3]
-        uj, vj = kj[0] * x_j[:, 0] / x_j[:, 2] + kj[2], kj[1] * x_j[:, 1] / x_j[:, 2] + kj[3]
-        # frame j's own depth where the point lands: a point it does not see (occluded) is not used
-        kd = np.asarray(cap.depth_intrinsics[j], np.float64)
-        ud, vd = kd[0] * x_j[:, 0] / x_j[:, 2] + kd[2], kd[1] * x_j[:, 1] / x_j[:, 2] + kd[3]
+    ui, vi = project(x_i, ki)[0].T
+    uj, vj = project(x_j, kj)[0].T
+    # frame j's own depth where the point lands: a point it does not see (occluded) is not used
+    ud, vd = project(x_j, np.asarray(cap.depth_intrinsics[j], np.float64))[0].T
     w, h = frames.w, frames.h
     inside = (x_j[:, 2] > 0.05) & (uj >= 1) & (uj < w - 2) & (vj >= 1) & (vj < h - 2)
     inside &= (ui >= 1) & (ui < w - 2) & (vi >= 1) & (vi < h - 2) & (ud >= 0) & (ud < dw - 0.5) & (vd >= 0) & (vd < dh - 0.5)
@@ -139,7 +130,7 @@ def _pair_samples(frames: _Frames, poses: np.ndarray, i: int, j: int, modelled: 
         return None
     pi_u, pi_v, pj_u, pj_v = pi_u[use], pi_v[use], pj_u[use], pj_v[use]
     y = _bilinear(log_i, pi_u, pi_v) - _bilinear(log_j, pj_u, pj_v)
-    r2i, r2j = _radius_sq(pi_u, pi_v, ki, w, h), _radius_sq(pj_u, pj_v, kj, w, h)
+    r2i, r2j = corner_radius_sq(ki, pi_u, pi_v, w, h), corner_radius_sq(kj, pj_u, pj_v, w, h)
     if modelled is not None:
         a, b = modelled
         y = y - (np.log(np.maximum(1 + a * r2i + b * r2i**2, 1e-3)) - np.log(np.maximum(1 + a * r2j + b * r2j**2, 1e-3)))[:, None]

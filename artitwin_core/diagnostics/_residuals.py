@@ -15,6 +15,7 @@ from dataclasses import dataclass, fields
 import numpy as np
 
 from artitwin_core._errors import InputError
+from artitwin_core.geometry import corner_radius_sq
 from artitwin_core.joints import JointType, joint_transforms
 
 TARGETS = ("photometric", "depth", "depth-noise", "joint-tracks")
@@ -182,10 +183,7 @@ class ResidualData:
         u, v = np.meshgrid(np.arange(w, dtype=np.float64), np.arange(h, dtype=np.float64))
         out = np.empty((t_count, h, w))
         for t in range(t_count):
-            cx, cy = self.rgb_intrinsics[t, 2], self.rgb_intrinsics[t, 3]
-            r2 = (u - cx) ** 2 + (v - cy) ** 2
-            r2max = max((x - cx) ** 2 + (y - cy) ** 2 for x, y in ((0, 0), (w - 1, 0), (0, h - 1), (w - 1, h - 1)))
-            out[t] = np.sqrt(r2 / r2max)
+            out[t] = np.sqrt(corner_radius_sq(self.rgb_intrinsics[t], u, v, w, h))
         return out
 
 

@@ -9,6 +9,7 @@ by ``raster_intrinsics``.
 
 from artitwin_core.geometry._camera import (
     backproject,
+    corner_radius_sq,
     depth_normals,
     nearest_pixel,
     pixel_grid,
@@ -33,6 +34,7 @@ __all__ = [
     "axis_angle_to_matrix",
     "backproject",
     "check_rigid",
+    "corner_radius_sq",
     "depth_normals",
     "interpolate_poses",
     "invert_se3",

@@ -96,6 +96,15 @@ def depth_normals(depth, intrinsics) -> np.ndarray:
         return n / np.linalg.norm(n, axis=-1, keepdims=True)
 
 
+def corner_radius_sq(intrinsics, u, v, width: int, height: int) -> np.ndarray:
+    """Squared distance of image points ``u, v`` (``[...]``, pixels) from the principal point
+    over the farthest image corner's (pixel centres ``0 .. width - 1``): the radial coordinate the
+    vignetting models use, 1 at that corner. ``intrinsics``: ``(fx, fy, cx, cy)`` ``[4]``."""
+    cx, cy = float(intrinsics[2]), float(intrinsics[3])
+    r2max = max((x - cx) ** 2 + (y - cy) ** 2 for x, y in ((0, 0), (width - 1, 0), (0, height - 1), (width - 1, height - 1)))
+    return ((np.asarray(u, np.float64) - cx) ** 2 + (np.asarray(v, np.float64) - cy) ** 2) / r2max
+
+
 def project(points, intrinsics, min_z: float = 1e-9) -> tuple[np.ndarray, np.ndarray]:
     """Image points of camera points ``[..., 3]`` (metres), through ``intrinsics`` ``[4]`` or one
     camera per leading index of the points (``[..., 4]``, as :func:`pixel_rays`).

@@ -51,7 +51,7 @@ import torch
 import torch.nn.functional as F
 
 from artitwin_core.gaussians import adam_step
-from artitwin_core.geometry import pixel_grid, pixel_rays
+from artitwin_core.geometry import corner_radius_sq, pixel_grid, pixel_rays
 
 _UNDISTORT_ITERATIONS = 10
 
@@ -92,10 +92,8 @@ def _linear_to_srgb(x: np.ndarray) -> np.ndarray:
 
 def radius_sq(intrinsics, width: int, height: int) -> np.ndarray:
     """``[H, W]`` squared radius from the principal point over the farthest corner's (as the catalog's)."""
-    cx, cy = float(intrinsics[2]), float(intrinsics[3])
     u, v = np.meshgrid(np.arange(width, dtype=np.float64), np.arange(height, dtype=np.float64))
-    r2max = max((x - cx) ** 2 + (y - cy) ** 2 for x, y in ((0, 0), (width - 1, 0), (0, height - 1), (width - 1, height - 1)))
-    return ((u - cx) ** 2 + (v - cy) ** 2) / r2max
+    return corner_radius_sq(intrinsics, u, v, width, height)
 
 
 def _distort(x, y, k):

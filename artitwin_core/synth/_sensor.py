@@ -11,6 +11,8 @@ from __future__ import annotations
 import numpy as np
 from scipy import ndimage
 
+from artitwin_core.geometry import corner_radius_sq
+
 DEPTH_A_M = 0.001
 DEPTH_B_PER_M = 0.002
 MAX_RANGE_M = 5.0
@@ -40,12 +42,8 @@ def srgb_to_linear(x: np.ndarray) -> np.ndarray:
 
 def vignette(width: int, height: int, intrinsics, strength: float) -> np.ndarray:
     """``[H, W]`` gain 1 - strength * r^2, r normalised to 1 at the farthest image corner."""
-    _, _, cx, cy = intrinsics
     u, v = np.meshgrid(np.arange(width), np.arange(height))
-    r2 = (u - cx) ** 2 + (v - cy) ** 2
-    corners = [(0, 0), (width - 1, 0), (0, height - 1), (width - 1, height - 1)]
-    r2max = max((x - cx) ** 2 + (y - cy) ** 2 for x, y in corners)
-    return 1.0 - strength * r2 / r2max
+    return 1.0 - strength * corner_radius_sq(intrinsics, u, v, width, height)
 
 
 def expose_rgb(
