@@ -9,6 +9,8 @@ models them.
 
 from __future__ import annotations
 
+from collections.abc import Callable
+
 import numpy as np
 
 from artitwin_core import InputError
@@ -97,8 +99,8 @@ def self_consistency(
     )
     # Poses a lag correction read between frames far apart carry the interpolation's error, which
     # fakes a depth error of this size (bench_lag_interpolation: -15 mm at 1.8 m, 0.27 s apart).
-    spacing = float(np.median(np.diff(cap.timestamps))) if cap.num_frames > 1 else 0.0
-    interpolated = bool(pose_lag is not None and pose_lag.applied and spacing > config.max_lag_interpolation_s)
+    spacing = pose_lag.frame_interval_s if pose_lag is not None and pose_lag.applied else 0.0
+    interpolated = bool(spacing > config.max_lag_interpolation_s)
     depth_on = depth_seen and not interpolated
 
     def explained(before: float, after: float) -> float:
@@ -200,18 +202,23 @@ def overrule_twin_vignetting(report: DiagnosisReport, scope: str, own: list[Effe
     entry = f"{scope}/vignetting"
     if mine is None or mine.enabled or entry not in report.enabled:
         return report, []
-    findings = [
-        f.model_copy(update={"enabled": False}) if f.scope == scope and f.name == "vignetting" and f.target != mine.target else f
-        for f in report.findings
-    ]
-    enabled = [e for e in report.enabled if e != entry]
-    metrics = {**report.metrics, "enabled_count": float(len(enabled))}
     line = (
         f"{scope}: its residual against the twin has a radial pattern, but its own frames show no vignetting (corner "
         f"fall-off {100 * mine.params['corner_falloff']:.1f} %, standard error {100 * mine.params['corner_falloff_se']:.1f} %): "
         "the twin carries it, from the other recording's camera; vignetting is not enabled here."
     )
-    return report.model_copy(update={"findings": findings, "enabled": enabled, "metrics": metrics}), [line]
+    own_target = mine.target
+    return _disabled(report, lambda f: f.scope == scope and f.name == "vignetting" and f.target != own_target), [line]
+
+
+def _disabled(report: DiagnosisReport, which: Callable[[EffectFinding], bool]) -> DiagnosisReport:
+    """``report`` with the findings ``which`` picks no longer enabled (still reported), their
+    entries out of ``enabled`` and ``enabled_count`` recounted."""
+    off = {f"{f.scope}/{f.name}" for f in report.findings if which(f)}
+    findings = [f.model_copy(update={"enabled": False}) if which(f) else f for f in report.findings]
+    enabled = [e for e in report.enabled if e not in off]
+    metrics = {**report.metrics, "enabled_count": float(len(enabled))}
+    return report.model_copy(update={"findings": findings, "enabled": enabled, "metrics": metrics})
 
 
 def defer_joint_effects(report: DiagnosisReport, findings: list[EffectFinding]) -> tuple[DiagnosisReport, list[str]]:
@@ -227,13 +234,12 @@ def defer_joint_effects(report: DiagnosisReport, findings: list[EffectFinding]) 
     depth = next((f for f in findings if f.name == "depth_scale_offset" and f.enabled), None)
     if depth is None:
         return report, []
-    recordings = {STATIC_SCOPE, DYNAMIC_SCOPE}
-    held = [f for f in report.findings if f.enabled and f.target == "joint-tracks" and f.scope not in recordings]
+    def joint_effect(f: EffectFinding) -> bool:
+        return f.enabled and f.target == "joint-tracks" and f.scope not in (STATIC_SCOPE, DYNAMIC_SCOPE)
+
+    held = [f for f in report.findings if joint_effect(f)]
     if not held:
         return report, []
-    entries = {f"{f.scope}/{f.name}" for f in held}
-    findings_out = [f.model_copy(update={"enabled": False}) if any(f is h for h in held) else f for f in report.findings]
-    enabled = [e for e in report.enabled if e not in entries]
     error_mm = 1e3 * float(depth.params["error_m"])
     lines = [
         f"{f.scope}: {f.name} is not enabled yet: the joint's tracks were lifted from depth that the static recording's "
@@ -242,8 +248,7 @@ def defer_joint_effects(report: DiagnosisReport, findings: list[EffectFinding]) 
         "judges the joint on corrected tracks."
         for f in held
     ]
-    metrics = {**report.metrics, "enabled_count": float(len(enabled))}
-    return report.model_copy(update={"findings": findings_out, "enabled": enabled, "metrics": metrics}), lines
+    return _disabled(report, joint_effect), lines
 
 
 def with_own_vignetting(

@@ -41,7 +41,8 @@ def _depth_finding(findings):
 
 
 def test_frames_holding_the_end_pose_are_left_out(corrected):
-    lag = PoseLagResult.model_construct(estimated=True, applied=True, lag_s=LAG_S)
+    lag = PoseLagResult.model_construct(estimated=True, applied=True, lag_s=LAG_S,
+                                        frame_interval_s=float(np.median(np.diff(corrected.timestamps))))
     held = held_by_lag(corrected.timestamps, lag)
     assert held.tolist() == [False] * 14 + [True] * 2
     assert not held_by_lag(corrected.timestamps, lag.model_copy(update={"applied": False})).any()
@@ -59,7 +60,8 @@ def test_a_depth_error_from_poses_interpolated_far_apart_is_reported_not_enabled
     off, which fakes -15 mm at 1.8 m (bench_lag_interpolation); the test cannot tell it from a
     sensor's error, so it says so instead of asking for the depth to be modelled."""
     capture = _corrected(8)
-    lag = PoseLagResult.model_construct(estimated=True, applied=True, lag_s=LAG_S)
+    lag = PoseLagResult.model_construct(estimated=True, applied=True, lag_s=LAG_S,
+                                        frame_interval_s=float(np.median(np.diff(capture.timestamps))))
     plain = _depth_finding(self_consistency(capture, DiagnoseConfig())[0])
     assert plain.enabled and plain.params["error_m"] < -0.01, plain.params  # the fake, enabled without the lag
     findings, lines = self_consistency(capture, DiagnoseConfig(), lag)
