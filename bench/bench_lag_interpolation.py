@@ -28,7 +28,12 @@ from _common import print_table, write_results
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
-from artitwin_core.capture import DepthCalibrationConfig, correct_pose_lag, estimate_depth_calibration  # noqa: E402
+from artitwin_core.capture import (  # noqa: E402
+    DepthCalibrationConfig,
+    beyond_recorded,
+    correct_pose_lag,
+    estimate_depth_calibration,
+)
 from artitwin_core.synth import BENCHMARK_SCENES, generate_scene  # noqa: E402
 
 
@@ -57,7 +62,7 @@ def row(stride: int, lag_s: float, seed: int, size: int) -> dict:
     recorded = _displacement_mm(np.asarray(cap.world_from_camera, np.float64), truth, z)
     err_c, se_c = _depth_error(cap, corrected)
     # the frames whose corrected time the recorded stream does not reach keep its end pose
-    kept = np.nonzero((cap.timestamps + lag_s >= cap.timestamps[0]) & (cap.timestamps + lag_s <= cap.timestamps[-1]))[0]
+    kept = np.nonzero(~beyond_recorded(cap.timestamps, lag_s))[0]
     err_k, se_k = _depth_error(cap.select_frames(kept), corrected[kept])
     err_t, se_t = _depth_error(dataclasses.replace(cap, world_from_camera=truth), truth)
     return {

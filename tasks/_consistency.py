@@ -14,7 +14,13 @@ from collections.abc import Callable
 import numpy as np
 
 from artitwin_core import InputError
-from artitwin_core.capture import Capture, DriftSignificance, estimate_depth_calibration, estimate_vignetting
+from artitwin_core.capture import (
+    Capture,
+    DriftSignificance,
+    beyond_recorded,
+    estimate_depth_calibration,
+    estimate_vignetting,
+)
 from artitwin_core.capture import DepthCalibrationConfig as CoreCalibrationConfig
 from schemas import CaptureArtifact, PoseDriftConfig, PoseLagResult
 from schemas._configs import effect_scope
@@ -37,11 +43,9 @@ _SELF_TOL_M = 1e-4
 def held_by_lag(timestamps: np.ndarray, pose_lag: PoseLagResult | None) -> np.ndarray:
     """``[T]`` the frames whose pose a lag correction could not read off the recorded trajectory
     (their time plus the lag falls outside it): they keep its end pose, up to a lag's motion off."""
-    ts = np.asarray(timestamps, np.float64)
-    if pose_lag is None or not pose_lag.applied or not pose_lag.lag_s:
-        return np.zeros(ts.shape, bool)
-    at = ts + float(pose_lag.lag_s)
-    return (at < ts[0]) | (at > ts[-1])
+    if pose_lag is None or not pose_lag.applied:
+        return np.zeros(np.shape(timestamps), bool)
+    return beyond_recorded(timestamps, pose_lag.lag_s)
 
 
 def self_consistency(

@@ -111,6 +111,14 @@ class PoseLag:
         return ""
 
 
+def beyond_recorded(timestamps: np.ndarray, lag_s: float) -> np.ndarray:
+    """``[T]`` the frames whose time plus ``lag_s`` falls outside the recorded span
+    ``timestamps [T]``: :func:`correct_pose_lag` gives them the end pose (no lag: none)."""
+    ts = np.asarray(timestamps, dtype=np.float64)
+    at = ts + float(lag_s)
+    return (at < ts[0]) | (at > ts[-1])
+
+
 def correct_pose_lag(world_from_camera: np.ndarray, timestamps: np.ndarray, lag_s: float) -> np.ndarray:
     """``[T, 4, 4]`` poses at the frames' ``timestamps [T]`` from ``world_from_camera [T, 4, 4]``
     recorded ``lag_s`` seconds late (negative: early): the recorded trajectory read at
