@@ -7,6 +7,8 @@ recording's own AR world frame; cameras use OpenCV axes (x right, y down, z forw
 
 from __future__ import annotations
 
+import math
+
 from pydantic import Field
 
 from schemas._base import Array, Artifact
@@ -21,7 +23,7 @@ class CaptureArtifact(Artifact):
     """One RGB-D recording as read from its files (mirrors ``artitwin_core.capture.Capture``)."""
 
     kind = "capture"
-    schema_version = 1
+    schema_version = 2
 
     rgb: Array("uint8", "T H W 3") = Field(description="sRGB frames, [T, H, W, 3] uint8.")
     depth: Array("float32", "T h w") = Field(
@@ -46,6 +48,15 @@ class CaptureArtifact(Artifact):
     )
     source_format: str = Field(description="Reader that produced it: record3d-r3d, record3d-exr, nerfstudio, stray, synthetic.")
     source_path: str = Field(default="", description="Path of the recording as given by the user (informational, not hashed).")
+    stream_world_from_camera: Array("float64", "S 4 4") | None = Field(
+        default=None,
+        description="Every pose the recording holds, the frames' and those of frames not read (removed, strided, not "
+        "keyframes), as recorded, [S, 4, 4]; None when it holds none beyond the frames'. Read by the pose-lag stages.",
+    )
+    stream_timestamps: Array("float64", "S") | None = Field(
+        default=None, description="Seconds of the stream's poses on the frames' clock, increasing, [S]."
+    )
+    stream_frame_ids: Array("int64", "S") | None = Field(default=None, description="Frame numbers of the stream's poses, [S].")
 
 
 class CameraPoses(Artifact):
@@ -192,6 +203,12 @@ class PoseLagResult(Artifact):
     lag_frames: float = Field(description="The lag in frame intervals (lag_s / frame_interval_s).")
     lag_se_s: float = Field(description="Standard error of lag_s (frame-block jackknife), seconds; NaN when not estimated.")
     frame_interval_s: float = Field(description="The median spacing of the recording's timestamps, seconds (one 'frame').")
+    pose_interval_s: float = Field(
+        default=math.nan,
+        description="The median spacing of the poses the corrected trajectory is read off between, seconds: the pose "
+        "stream's (a phone records one per frame, kept or not) when the capture has one, else frame_interval_s; NaN when "
+        "not estimated or stored before it was recorded.",
+    )
     z_score: float = Field(description="|lag_s| over its standard error; 0 when not estimated.")
     agreement_z: float = Field(
         description="How much better the frames' depth agrees at the lag than at the poses as recorded, in standard errors "

@@ -104,8 +104,9 @@ class DiagnoseConfig(StageConfig):
     max_lag_interpolation_s: float = Field(
         default=0.1, ge=0,
         description="After a pose-lag correction, the self-consistency test reports a depth error but does not enable "
-        "depth_scale_offset when the frames are more than this many seconds apart: poses interpolated that far between "
-        "recorded ones fake a depth error (bench/bench_lag_interpolation.py: -15 mm at 1.8 m, 0.27 s apart).",
+        "depth_scale_offset when the recorded poses it read the frames' poses between (the pose stream's, else the "
+        "frames' own) are more than this many seconds apart: poses interpolated that far between recorded ones fake a "
+        "depth error (bench/bench_lag_interpolation.py: -15 mm at 1.8 m, frames 0.27 s apart and no stream).",
     )
     min_vignetting_falloff: float = Field(
         default=0.05, ge=0, le=1,

@@ -9,6 +9,7 @@ models them.
 
 from __future__ import annotations
 
+import math
 from collections.abc import Callable
 
 import numpy as np
@@ -40,12 +41,23 @@ from tasks._convert import core_kwargs, json_safe, to_core
 _SELF_TOL_M = 1e-4
 
 
-def held_by_lag(timestamps: np.ndarray, pose_lag: PoseLagResult | None) -> np.ndarray:
+def held_by_lag(timestamps: np.ndarray, pose_lag: PoseLagResult | None,
+                track_timestamps: np.ndarray | None = None) -> np.ndarray:
     """``[T]`` the frames whose pose a lag correction could not read off the recorded trajectory
-    (their time plus the lag falls outside it): they keep its end pose, up to a lag's motion off."""
+    (``track_timestamps``, the pose stream's, default the frames' own: their time plus the lag
+    falls outside it): they keep its end pose, up to a lag's motion off."""
     if pose_lag is None or not pose_lag.applied:
         return np.zeros(np.shape(timestamps), bool)
-    return beyond_recorded(timestamps, pose_lag.lag_s)
+    return beyond_recorded(timestamps, pose_lag.lag_s, track_timestamps)
+
+
+def lag_pose_spacing(pose_lag: PoseLagResult | None) -> float:
+    """How far apart (s) the recorded poses were that a lag correction read the frames' poses
+    between: the pose stream's spacing, or the frames' when the capture had no stream (or the
+    result predates the field); 0 when no lag was applied."""
+    if pose_lag is None or not pose_lag.applied:
+        return 0.0
+    return pose_lag.pose_interval_s if math.isfinite(pose_lag.pose_interval_s) else pose_lag.frame_interval_s
 
 
 def self_consistency(
@@ -70,8 +82,9 @@ def self_consistency(
     recorded trajectory does not reach are left out: they keep its end pose, and at phone frame
     rates their few centimetres of pose error faked a depth error past the gate
     (``bench/bench_lag_interpolation.py``). With frames more than
-    ``config.max_lag_interpolation_s`` apart the corrected poses are interpolated far between
-    recorded ones, which fakes a depth error too: the depth finding is then reported
+    ``config.max_lag_interpolation_s`` apart and no pose stream between them (the poses of
+    the frames not read, ``Capture.pose_track``), the corrected poses are interpolated far
+    between recorded ones, which fakes a depth error too: the depth finding is then reported
     (significant) but not enabled, and the line says why.
     """
     _, dh, dw = capture.depth.shape
@@ -81,7 +94,7 @@ def self_consistency(
             f"fewer than {config.self_consistency_min_depth_pixels} pixels, on which the test cannot be trusted."
         ]
     cap = to_core(Capture, capture)
-    held = held_by_lag(cap.timestamps, pose_lag)
+    held = held_by_lag(cap.timestamps, pose_lag, cap.pose_track()[0])
     if held.any():
         cap = cap.select_frames(np.nonzero(~held)[0])
     gate = core_kwargs(DriftSignificance.why_not, PoseDriftConfig())
@@ -101,9 +114,10 @@ def self_consistency(
     depth_seen = (
         abs(error) >= config.min_depth_error_m and abs(error) >= 3.0 * depth.error_se_m and depth.error_se_m <= 0.01
     )
-    # Poses a lag correction read between frames far apart carry the interpolation's error, which
-    # fakes a depth error of this size (bench_lag_interpolation: -15 mm at 1.8 m, 0.27 s apart).
-    spacing = pose_lag.frame_interval_s if pose_lag is not None and pose_lag.applied else 0.0
+    # Poses a lag correction read between recorded poses far apart carry the interpolation's error,
+    # which fakes a depth error of this size (bench_lag_interpolation: -15 mm at 1.8 m, frames
+    # 0.27 s apart and no pose stream between them).
+    spacing = lag_pose_spacing(pose_lag)
     interpolated = bool(spacing > config.max_lag_interpolation_s)
     depth_on = depth_seen and not interpolated
 
@@ -150,9 +164,11 @@ def self_consistency(
         )
         lines.append(
             f"{seen} Model it: --effect depth_scale_offset." if depth_on else
-            f"{seen} Not enabled: its poses were corrected for a lag by reading them between frames {spacing:.2f} s "
-            "apart, and that interpolation fakes a depth error of this size. A recording whose frames are kept closer "
-            "together (a higher ingest max_frames) can tell; --effect depth_scale_offset models it anyway."
+            f"{seen} Not enabled: its poses were corrected for a lag by reading them between recorded poses "
+            f"{spacing:.2f} s apart (the recording holds no pose stream between its frames), and that interpolation "
+            "fakes a depth error of this size. A recording whose frames are kept closer together (a higher ingest "
+            "max_frames), or an export that keeps the poses of the frames it drops, can tell; --effect "
+            "depth_scale_offset models it anyway."
         )
     return findings, lines
 

@@ -492,7 +492,7 @@ def _with_findings(report: DiagnosisReport, scope: str, findings: list[EffectFin
 # 11: the recording's own vignetting test; joint effects wait for a depth error to be modelled;
 # the self-consistency test leaves out the frames a lag correction could not reach.
 # 12: after a lag correction between frames far apart, the depth error is reported, not enabled.
-@stage(name="diagnose", version=12, config=DiagnoseConfig, output=DiagnosisReport)
+@stage(name="diagnose", version=13, config=DiagnoseConfig, output=DiagnosisReport)
 def diagnose_twin(
     capture: CaptureArtifact,
     prediction: ViewPrediction,

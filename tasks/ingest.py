@@ -42,7 +42,7 @@ def keyframe_config(config: IngestConfig) -> KeyframeConfig:
     return to_core_config(KeyframeConfig, config)
 
 
-@stage(name="ingest", version=1, config=IngestConfig, output=CaptureArtifact, raw_inputs=("recording",))
+@stage(name="ingest", version=2, config=IngestConfig, output=CaptureArtifact, raw_inputs=("recording",))
 def ingest_recording(recording: Path, config: IngestConfig) -> CaptureArtifact:
     """Read the recording at ``recording`` (any supported format) into a capture artifact, at the
     working resolution and, for a long recording, its keyframes only (chosen from a first read of

@@ -16,9 +16,8 @@ import math
 import numpy as np
 
 from artitwin_core import InputError
-from artitwin_core.capture import Capture, PoseLag, estimate_pose_lag
+from artitwin_core.capture import Capture, PoseLag, estimate_pose_lag, lag_corrected
 from artitwin_core.capture import PoseLagConfig as CorePoseLagConfig
-from artitwin_core.capture import correct_pose_lag as shift_poses
 from schemas import CaptureArtifact, PoseLagResult, PoseLagStageConfig
 from tasks._convert import config_map, core_kwargs, to_core, to_core_config
 from tasks._stage import stage
@@ -43,6 +42,7 @@ def _not_estimated(capture: CaptureArtifact, note: str) -> PoseLagResult:
     interval = float(np.median(np.diff(ts))) if ts.size > 1 else math.nan
     return PoseLagResult(
         estimated=False, lag_s=0.0, lag_frames=0.0, lag_se_s=math.nan, frame_interval_s=interval,
+        pose_interval_s=math.nan,
         z_score=0.0, agreement_z=0.0, disagreement_zero=math.nan, disagreement_lag=math.nan,
         residual_zero_m=math.nan, residual_lag_m=math.nan, lags_frames=np.zeros(0), disagreement=np.zeros(0),
         searched_frames=0.0, frames_used=0, pairs=0, method=METHOD, significant=False, applied=False, note=note,
@@ -57,7 +57,7 @@ def _describe(lag: PoseLag) -> str:
     )
 
 
-@stage(name="pose_lag", version=2, config=PoseLagStageConfig, output=PoseLagResult)
+@stage(name="pose_lag", version=3, config=PoseLagStageConfig, output=PoseLagResult)
 def fit_pose_lag(capture: CaptureArtifact, config: PoseLagStageConfig) -> PoseLagResult:
     """How late ``capture``'s poses are against its RGB-D frames (``estimate_pose_lag``) and
     whether ``correct_pose_lag`` applies it: when it is at least ``min_lag_frames``,
@@ -98,7 +98,7 @@ def fit_pose_lag(capture: CaptureArtifact, config: PoseLagStageConfig) -> PoseLa
         note = f"{said}; not corrected: {why}."
     return PoseLagResult(
         estimated=True, lag_s=lag.lag_s, lag_frames=lag.lag_frames, lag_se_s=lag.lag_se_s,
-        frame_interval_s=lag.frame_interval_s, z_score=lag.z_score, agreement_z=lag.agreement_z,
+        frame_interval_s=lag.frame_interval_s, pose_interval_s=lag.pose_interval_s, z_score=lag.z_score, agreement_z=lag.agreement_z,
         disagreement_zero=lag.disagreement_zero, disagreement_lag=lag.disagreement_lag,
         residual_zero_m=lag.residual_zero_m, residual_lag_m=lag.residual_lag_m,
         lags_frames=lag.lags_frames, disagreement=lag.disagreement, searched_frames=lag.searched_frames,
@@ -107,12 +107,13 @@ def fit_pose_lag(capture: CaptureArtifact, config: PoseLagStageConfig) -> PoseLa
     )
 
 
-@stage(name="correct_pose_lag", version=1, config=PoseLagStageConfig, output=CaptureArtifact)
+@stage(name="correct_pose_lag", version=2, config=PoseLagStageConfig, output=CaptureArtifact)
 def correct_pose_lag(capture: CaptureArtifact, lag: PoseLagResult, config: PoseLagStageConfig) -> CaptureArtifact:
-    """``capture`` with each frame's pose read off its recorded trajectory ``lag.lag_s`` later
-    (``artitwin_core.capture.correct_pose_lag``; every other field as it was); a lag that was not
-    ``applied`` leaves the capture as it is."""
+    """``capture`` with each frame's pose, and its pose stream, read off its recorded trajectory
+    (the pose stream when it has one) ``lag.lag_s`` later (``artitwin_core.capture.lag_corrected``;
+    every other field as it was); a lag that was not ``applied`` leaves the capture as it is."""
     if not lag.applied:
         return capture
-    poses = shift_poses(capture.world_from_camera, capture.timestamps, lag.lag_s)
-    return capture.model_copy(update={"world_from_camera": poses})
+    fixed = lag_corrected(to_core(Capture, capture), lag.lag_s)
+    return capture.model_copy(update={"world_from_camera": fixed.world_from_camera,
+                                      "stream_world_from_camera": fixed.stream_world_from_camera})

@@ -20,7 +20,13 @@ from artitwin_core.capture._config import (
 from artitwin_core.capture._detect import FORMATS, detect_format, read_capture, recording_files
 from artitwin_core.capture._drift import DriftSignificance, PoseDrift, drift_significance
 from artitwin_core.capture._keyframes import KeyframeSelection, select_keyframes
-from artitwin_core.capture._lag import PoseLag, beyond_recorded, correct_pose_lag, estimate_pose_lag
+from artitwin_core.capture._lag import (
+    PoseLag,
+    beyond_recorded,
+    correct_pose_lag,
+    estimate_pose_lag,
+    lag_corrected,
+)
 from artitwin_core.capture._nerfstudio import read_nerfstudio, write_nerfstudio
 from artitwin_core.capture._options import ReadOptions
 from artitwin_core.capture._r3d import read_r3d, write_r3d
@@ -49,6 +55,7 @@ __all__ = [
     "beyond_recorded",
     "calibrate_depth",
     "correct_pose_lag",
+    "lag_corrected",
     "depth_intrinsics_from_rgb",
     "detect_format",
     "downscale_rgb",

@@ -264,6 +264,43 @@ def fit_rgb(frame: np.ndarray, options: ReadOptions) -> np.ndarray:
     return cv2.resize(frame, (nw, nh), interpolation=cv2.INTER_AREA)
 
 
+@dataclasses.dataclass(frozen=True)
+class PoseStream:
+    """Every pose a recording holds (``Capture.stream_*``): frame numbers ``[S]``, seconds ``[S]``
+    and OpenCV camera-to-world ``[S, 4, 4]``, in frame order."""
+
+    frame_ids: np.ndarray
+    timestamps: np.ndarray
+    world_from_camera: np.ndarray
+
+
+def pose_stream(frame_ids: Sequence[int], timestamps: Sequence[float], world_from_camera: Sequence[np.ndarray],
+                with_frames: Sequence[bool]) -> PoseStream:
+    """The pose stream of a recording from all its pose rows: ``frame_ids [N]``, ``timestamps
+    [N]``, ``world_from_camera [N, 4, 4]`` (a row that is ``None`` or not rigid is left out: a pose
+    of a frame not read does not stop the read) and ``with_frames [N]``, whether a row's frame is
+    in the files. A row without a frame that repeats a neighbour's pose exactly is left out too:
+    an exporter's filler for a removed frame (ArtiTwin's own Record3D writer once wrote them),
+    not a pose that was recorded. Rows whose time does not increase are left out."""
+    keep_ids, keep_ts, keep_poses = [], [], []
+    rows = list(world_from_camera)
+    for k, (fid, ts, pose, framed) in enumerate(zip(frame_ids, timestamps, rows, with_frames, strict=True)):
+        if pose is None or not np.all(np.isfinite(pose)) or not np.isfinite(ts):
+            continue
+        if not framed and any(0 <= j < len(rows) and rows[j] is not None and np.array_equal(rows[j], pose)
+                              for j in (k - 1, k + 1)):
+            continue
+        if check_rigid(pose) is not None:
+            continue
+        if keep_ts and ts <= keep_ts[-1]:
+            continue
+        keep_ids.append(int(fid))
+        keep_ts.append(float(ts))
+        keep_poses.append(np.asarray(pose, np.float64))
+    return PoseStream(np.asarray(keep_ids, np.int64), np.asarray(keep_ts, np.float64),
+                      np.asarray(keep_poses, np.float64).reshape(-1, 4, 4))
+
+
 def assemble(
     *,
     rgb: Sequence[np.ndarray],
@@ -278,13 +315,15 @@ def assemble(
     source_format: str,
     options: ReadOptions,
     rgb_source_wh: tuple[int, int] | None = None,
+    stream: PoseStream | None = None,
 ) -> Capture:
     """Stack per-frame arrays into a :class:`Capture` at the RGB size the options ask.
 
     ``rgb_intrinsics`` are at the stored size ``rgb_source_wh`` (default: the frames' own size).
     Frames already at the options' size (:func:`fit_rgb`) are kept; larger ones are downscaled
     here. With ``options.skip_rgb`` the frames are not given and ``rgb`` becomes a read-only
-    zero view of the size a full read gives."""
+    zero view of the size a full read gives. ``stream`` (all the recording's poses) is kept
+    when it holds a pose of a frame not read, and holds every frame read at its own pose and time."""
     rgb_intr = np.asarray(rgb_intrinsics, dtype=np.float64).reshape(-1, 4)
     frames = list(rgb)
     n = len(depth)
@@ -312,4 +351,30 @@ def assemble(
         frame_ids=np.asarray(frame_ids, dtype=np.int64).reshape(-1),
         distortion=None if distortion is None else np.asarray(distortion, dtype=np.float64),
         source_format=source_format,
+        **_stream_fields(stream, np.asarray(frame_ids, np.int64).reshape(-1),
+                         np.asarray(timestamps, np.float64).reshape(-1),
+                         np.asarray(world_from_camera, np.float64).reshape(-1, 4, 4)),
     )
+
+
+def _stream_fields(stream: PoseStream | None, frame_ids: np.ndarray, timestamps: np.ndarray,
+                   world_from_camera: np.ndarray) -> dict:
+    """``Capture``'s ``stream_*`` fields: empty unless ``stream`` adds poses to the frames' and
+    agrees with them (each frame's pose and time in it)."""
+    if stream is None or stream.frame_ids.size < 2:
+        return {}
+    extra = np.setdiff1d(stream.frame_ids, frame_ids)
+    if extra.size == 0:
+        return {}
+    at = np.searchsorted(stream.frame_ids, frame_ids)
+    inside = at < stream.frame_ids.size
+    found = np.zeros(frame_ids.size, bool)
+    found[inside] = stream.frame_ids[at[inside]] == frame_ids[inside]
+    if not found.all():
+        return {}
+    same = (np.allclose(stream.timestamps[at], timestamps, atol=1e-9)
+            and np.allclose(stream.world_from_camera[at], world_from_camera, atol=1e-9))
+    if not same:
+        return {}
+    return {"stream_world_from_camera": stream.world_from_camera, "stream_timestamps": stream.timestamps,
+            "stream_frame_ids": stream.frame_ids}

@@ -5,7 +5,8 @@ with: frame ``i``'s images are taken at ``timestamps[i]`` but its recorded pose 
 ``timestamps[i] - lag_s``. Every frame's pose is then off by the camera's motion over ``lag_s``,
 and the static background, seen through those poses, appears to move with the camera's velocity.
 :func:`estimate_pose_lag` finds ``lag_s`` by a 1-D search: the poses are read off the recorded
-trajectory at ``timestamps + lag`` (``interpolate_poses``) and each frame's depth is projected
+trajectory (the recording's pose stream, ``Capture.pose_track``, when it holds poses between the
+frames) at ``timestamps + lag`` (``interpolate_poses``) and each frame's depth is projected
 into nearby frames, where it must meet their depth; the lag at which the most depth agrees wins.
 
 Only depth and poses are compared, never grey levels: when the RGB alone is exposed at another
@@ -22,6 +23,7 @@ other frame's depth near its minimum, which they do not.
 
 from __future__ import annotations
 
+import dataclasses
 import math
 from dataclasses import dataclass
 
@@ -43,6 +45,8 @@ class PoseLag:
         lag_s: the lag, seconds.
         lag_se_s: its standard error (frame-block jackknife), seconds.
         frame_interval_s: the median spacing of the timestamps, seconds (a "frame").
+        pose_interval_s: the median spacing of the poses the trajectory is read off between
+            (the pose stream's when the capture has one, else ``frame_interval_s``), seconds.
         lags_frames: ``[G]`` the lags of the coarse search, frame intervals, increasing.
         disagreement: ``[G]`` the score at each: the mean over projected points of the robust
             depth misfit, 0 (every point lands on the depth it predicts) to 1 (none does).
@@ -63,6 +67,7 @@ class PoseLag:
     lag_s: float
     lag_se_s: float
     frame_interval_s: float
+    pose_interval_s: float
     lags_frames: np.ndarray
     disagreement: np.ndarray
     disagreement_zero: float
@@ -111,25 +116,43 @@ class PoseLag:
         return ""
 
 
-def beyond_recorded(timestamps: np.ndarray, lag_s: float) -> np.ndarray:
+def beyond_recorded(timestamps: np.ndarray, lag_s: float, track_timestamps: np.ndarray | None = None) -> np.ndarray:
     """``[T]`` the frames whose time plus ``lag_s`` falls outside the recorded span
-    ``timestamps [T]``: :func:`correct_pose_lag` gives them the end pose (no lag: none)."""
+    (``track_timestamps``, the pose stream's; default the frames' own ``timestamps [T]``):
+    :func:`correct_pose_lag` gives them the end pose (no lag: none)."""
     ts = np.asarray(timestamps, dtype=np.float64)
+    span = ts if track_timestamps is None else np.asarray(track_timestamps, dtype=np.float64)
     at = ts + float(lag_s)
-    return (at < ts[0]) | (at > ts[-1])
+    return (at < span[0]) | (at > span[-1])
 
 
-def correct_pose_lag(world_from_camera: np.ndarray, timestamps: np.ndarray, lag_s: float) -> np.ndarray:
+def correct_pose_lag(world_from_camera: np.ndarray, timestamps: np.ndarray, lag_s: float,
+                     track: tuple[np.ndarray, np.ndarray] | None = None) -> np.ndarray:
     """``[T, 4, 4]`` poses at the frames' ``timestamps [T]`` from ``world_from_camera [T, 4, 4]``
     recorded ``lag_s`` seconds late (negative: early): the recorded trajectory read at
-    ``timestamps + lag_s`` (``interpolate_poses``). The frames whose time falls outside the
-    recorded span (the last ``lag_s`` of a late recording) take the end pose: no better than
-    what was recorded, and no worse. ``lag_s = 0`` returns a copy."""
+    ``timestamps + lag_s`` (``interpolate_poses``). The trajectory is ``track`` (``(timestamps
+    [S], world_from_camera [S, 4, 4])``, the recording's pose stream, ``Capture.pose_track``) when
+    given, else the frames' own poses, whose chords between frames far apart are the
+    interpolation's error. The frames whose time falls outside the recorded span (the last
+    ``lag_s`` of a late recording) take the end pose: no better than what was recorded, and no
+    worse. ``lag_s = 0`` returns a copy."""
     poses = np.asarray(world_from_camera, dtype=np.float64)
     ts = np.asarray(timestamps, dtype=np.float64)
-    if lag_s == 0.0 or ts.size < 2:
+    track_ts, track_poses = (ts, poses) if track is None else (np.asarray(track[0], np.float64), np.asarray(track[1], np.float64))
+    if lag_s == 0.0 or track_ts.size < 2:
         return poses.copy()
-    return interpolate_poses(poses, ts, ts + lag_s)
+    return interpolate_poses(track_poses, track_ts, ts + lag_s)
+
+
+def lag_corrected(capture: Capture, lag_s: float) -> Capture:
+    """``capture`` with its frames' poses and its pose stream (when it has one) read ``lag_s``
+    later off its pose track (:func:`correct_pose_lag`); everything else as it was."""
+    track = capture.pose_track()
+    out = dataclasses.replace(capture, world_from_camera=correct_pose_lag(
+        capture.world_from_camera, capture.timestamps, lag_s, track))
+    if capture.stream_world_from_camera is not None:
+        out = dataclasses.replace(out, stream_world_from_camera=correct_pose_lag(track[1], track[0], lag_s))
+    return out
 
 
 @dataclass(frozen=True)
@@ -191,7 +214,8 @@ def estimate_pose_lag(capture: Capture, config: PoseLagConfig | None = None) -> 
             f"{cfg.min_frames} frames; record longer, or turn the lag estimate off (pose_lag.correct = false)."
         )
     reach = margin * interval * (1 - 1e-9)
-    used = np.flatnonzero((ts - ts[0] >= reach) & (ts[-1] - ts >= reach))
+    track_ts, track_poses = (np.asarray(v, np.float64) for v in capture.pose_track())
+    used = np.flatnonzero((ts - track_ts[0] >= reach) & (track_ts[-1] - ts >= reach))
     depth = _usable_depth(capture, cfg)
     pairs = _draw_pairs(depth, capture.depth_intrinsics, used, cfg)
     if pairs.src.size == 0:
@@ -205,7 +229,7 @@ def estimate_pose_lag(capture: Capture, config: PoseLagConfig | None = None) -> 
     def at(taus: np.ndarray) -> np.ndarray:
         """``[len(taus), T, 4, 4]`` the poses read at ``timestamps + tau`` frames, every tau at once."""
         times = (ts[None, :] + np.asarray(taus, np.float64)[:, None] * interval).ravel()
-        return interpolate_poses(poses, ts, times).reshape(len(taus), t_count, 4, 4)
+        return interpolate_poses(track_poses, track_ts, times).reshape(len(taus), t_count, 4, 4)
 
     def table(taus: np.ndarray, use: np.ndarray | None = None) -> np.ndarray:
         """``[len(taus), P]`` each pair's summed score at each lag, over the points ``use``."""
@@ -258,6 +282,7 @@ def estimate_pose_lag(capture: Capture, config: PoseLagConfig | None = None) -> 
         lag_s=float(lag * interval),
         lag_se_s=se * interval,
         frame_interval_s=interval,
+        pose_interval_s=float(np.median(np.diff(track_ts))),
         lags_frames=coarse.astype(np.float64),
         disagreement=coarse_sums.sum(1) / pairs.points.shape[0],
         disagreement_zero=float(zero_sums.sum() / total),

@@ -16,6 +16,7 @@ import numpy as np
 
 from artitwin_core.capture._common import (
     ByteBudget,
+    PoseStream,
     assemble,
     check_capture_for_writing,
     check_capture_size,
@@ -31,6 +32,7 @@ from artitwin_core.capture._common import (
     fit_rgb,
     frame_number,
     input_error,
+    pose_stream,
     read_file_bytes,
 )
 from artitwin_core.capture._options import ReadOptions
@@ -187,7 +189,22 @@ def read_nerfstudio(path: str | Path, options: ReadOptions | None = None) -> Cap
         depth_intrinsics=depth_intrinsics_from_rgb(rgb_intr, wh0, depth_wh),
         world_from_camera=np.array(poses), timestamps=np.array(stamps), frame_ids=[n for n, _ in picked],
         distortion=dist0, source_format=FORMAT, options=options, rgb_source_wh=wh0,
+        stream=_pose_stream(table, use_stamps, fps) if len(picked) < len(table) else None,
     )
+
+
+def _pose_stream(table: list, use_stamps: bool, fps: float) -> PoseStream:
+    """Every listed frame's pose (a frame read or not; one that is not a pose is left out)."""
+    poses = []
+    for _, f in table:
+        try:
+            m = np.asarray(f.get("transform_matrix"), dtype=np.float64)
+            m = np.vstack([m, [0, 0, 0, 1]]) if m.shape == (3, 4) else m
+            poses.append(m @ OPENGL_FROM_OPENCV if m.shape == (4, 4) else None)
+        except (TypeError, ValueError):
+            poses.append(None)
+    stamps = [float(f["timestamp"]) if use_stamps else num / fps for num, f in table]
+    return pose_stream([num for num, _ in table], stamps, poses, [True] * len(table))
 
 
 def depth_to_mm_png(depth_m: np.ndarray) -> np.ndarray:

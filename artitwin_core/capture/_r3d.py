@@ -166,6 +166,7 @@ def read_r3d(path: str | Path, options: ReadOptions | None = None) -> Capture:
         depth_intrinsics=depth_intrinsics_from_rgb(rgb_intr, meta.rgb_wh, depth_wh),
         world_from_camera=np.array(poses), timestamps=np.array(stamps), frame_ids=picked,
         distortion=None, source_format=FORMAT, options=options, rgb_source_wh=meta.rgb_wh,
+        stream=meta.pose_stream(set(numbers), meta_src),
     )
 
 

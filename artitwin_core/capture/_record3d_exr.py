@@ -128,6 +128,7 @@ def read_record3d_exr(folder: str | Path, options: ReadOptions | None = None) ->
         depth_intrinsics=depth_intrinsics_from_rgb(rgb_intr, meta.rgb_wh, first_depth),
         world_from_camera=np.array(poses), timestamps=np.array(stamps), frame_ids=picked,
         distortion=None, source_format=FORMAT, options=options, rgb_source_wh=meta.rgb_wh,
+        stream=meta.pose_stream(set(numbers), meta_path),
     )
 
 

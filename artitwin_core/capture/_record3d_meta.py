@@ -14,7 +14,8 @@ from pathlib import Path
 
 import numpy as np
 
-from artitwin_core.capture._common import check_side, input_error
+from artitwin_core._errors import InputError
+from artitwin_core.capture._common import PoseStream, check_side, input_error, pose_stream
 from artitwin_core.capture._types import Capture
 from artitwin_core.geometry import OPENGL_FROM_OPENCV, make_se3, matrix_to_quat_wxyz, quat_wxyz_to_matrix
 
@@ -75,6 +76,20 @@ class Record3dMeta:
         if self.timestamps is not None:
             return float(self.timestamps[index] - self.timestamps[0])
         return index / self.fps
+
+
+    def pose_stream(self, with_frames: set[int], source: str | Path) -> PoseStream:
+        """Every pose row as a :class:`PoseStream` (rows that are not a rigid pose, and an
+        exporter's repeats in place of removed frames, left out); ``with_frames``: the frame
+        numbers whose files exist."""
+        poses = []
+        for i in range(self.num_poses):
+            try:
+                poses.append(self.world_from_camera(i, source))
+            except InputError:
+                poses.append(None)
+        ids = range(self.num_poses)
+        return pose_stream(ids, [self.frame_time(i) for i in ids], poses, [i in with_frames for i in ids])
 
 
 def _float_array(meta: dict, key: str, source: str | Path, shape_tail: tuple[int, ...]) -> np.ndarray:
@@ -169,17 +184,27 @@ def _nearest(ids: np.ndarray, n_total: int) -> np.ndarray:
 
 
 def build_metadata(capture: Capture) -> dict:
-    """Record3D metadata for ``capture``; rows for frame numbers absent from ``capture.frame_ids``
-    (gaps) repeat the nearest present frame's pose and intrinsics, timestamps are interpolated."""
+    """Record3D metadata for ``capture``. Frame numbers without a frame take the capture's pose
+    stream's pose and time where it has one (``Capture.stream_*``: a phone records a pose for every
+    frame, and the app's export keeps them when frames are removed); the rest repeat the nearest
+    known pose, with times interpolated (a reader leaves such repeats out of the stream)."""
     ids = np.asarray(capture.frame_ids, dtype=np.int64)
-    n_total = int(ids[-1]) + 1
-    near = _nearest(ids, n_total)
-    world_from_gl = capture.world_from_camera @ OPENGL_FROM_OPENCV
+    known_ids, known_ts, known_poses = ids, capture.timestamps, capture.world_from_camera
+    if capture.stream_frame_ids is not None and capture.stream_world_from_camera is not None:
+        extra = ~np.isin(capture.stream_frame_ids, ids)
+        known_ids = np.concatenate([ids, capture.stream_frame_ids[extra]])
+        known_ts = np.concatenate([capture.timestamps, capture.stream_timestamps[extra]])
+        known_poses = np.concatenate([capture.world_from_camera, capture.stream_world_from_camera[extra]])
+        order = np.argsort(known_ids)
+        known_ids, known_ts, known_poses = known_ids[order], known_ts[order], known_poses[order]
+    n_total = int(known_ids[-1]) + 1
+    near = _nearest(known_ids, n_total)
+    world_from_gl = known_poses @ OPENGL_FROM_OPENCV
     q = matrix_to_quat_wxyz(world_from_gl[:, :3, :3])
     rows = np.concatenate([q[:, 1:], q[:, :1], world_from_gl[:, :3, 3]], axis=1)[near]
-    intr = capture.rgb_intrinsics[near]
+    intr = capture.rgb_intrinsics[_nearest(ids, n_total)]
+    stamps = np.interp(np.arange(n_total), known_ids, known_ts)
     fx, fy, cx, cy = capture.rgb_intrinsics[0]
-    stamps = np.interp(np.arange(n_total), ids, capture.timestamps)
     dt = np.diff(capture.timestamps) / np.maximum(np.diff(ids), 1)
     fps = float(1.0 / np.median(dt)) if dt.size and np.median(dt) > 0 else 30.0
     w, h = capture.rgb_size

@@ -17,6 +17,7 @@ import numpy as np
 
 from artitwin_core.capture._common import (
     ByteBudget,
+    PoseStream,
     assemble,
     check_capture_for_writing,
     check_capture_size,
@@ -28,6 +29,7 @@ from artitwin_core.capture._common import (
     encode_png,
     fit_rgb,
     input_error,
+    pose_stream,
     read_file_bytes,
 )
 from artitwin_core.capture._nerfstudio import depth_to_mm_png
@@ -237,7 +239,20 @@ def read_stray(folder: str | Path, options: ReadOptions | None = None) -> Captur
         depth_intrinsics=depth_intrinsics_from_rgb(rgb_intr, (vw, vh), depth_wh),
         world_from_camera=np.array(poses), timestamps=np.array(stamps), frame_ids=picked,
         distortion=None, source_format=FORMAT, options=options, rgb_source_wh=(vw, vh),
+        stream=_pose_stream(odo, has_stamps, fps) if len(picked) < len(frames) else None,
     )
+
+
+def _pose_stream(odo: np.ndarray, has_stamps: bool, fps: float) -> PoseStream:
+    """Every odometry row's pose (a frame read or not; a row that is not a pose is left out)."""
+    poses = []
+    for row in odo:
+        x, y, z, qx, qy, qz, qw = row[2:]
+        qn = math.sqrt(qx * qx + qy * qy + qz * qz + qw * qw)
+        ok = math.isfinite(qn) and abs(qn - 1) <= 1e-2 and bool(np.all(np.isfinite(row[2:5])))
+        poses.append(make_se3(quat_wxyz_to_matrix(np.array([qw, qx, qy, qz])), np.array([x, y, z])) if ok else None)
+    stamps = odo[:, 0] - odo[0, 0] if has_stamps else odo[:, 1] / fps
+    return pose_stream(odo[:, 1].astype(np.int64), stamps, poses, [True] * len(odo))
 
 
 def write_stray(capture: Capture, folder: str | Path, *, lossless: bool = False) -> Path:

@@ -28,6 +28,15 @@ class Capture:
         distortion: ``[K]`` float64 OpenCV coefficients ``k1 k2 p1 p2 [k3 ...]`` or ``None``
             (images are pinhole).
         source_format: which reader produced this (``record3d-r3d``, ``nerfstudio``, ...).
+        stream_world_from_camera: ``[S, 4, 4]`` every pose the recording holds, as recorded, the
+            frames' and those of the frames not read (a Record3D export with frames removed, a
+            strided or keyframed read: a phone records poses at 30-60 Hz); ``None`` when it holds
+            no pose beyond the frames'. The pose-lag correction reads the trajectory off it
+            rather than off the frames' poses alone, which can be far apart. Stages that correct
+            the frames' poses later (drift, refinement) leave it as it was.
+        stream_timestamps: ``[S]`` increasing seconds, on the clock of ``timestamps``, of
+            ``stream_world_from_camera``; it holds every frame's time, at the frame's pose.
+        stream_frame_ids: ``[S]`` frame numbers of the stream's poses in the source files.
     """
 
     rgb: np.ndarray
@@ -40,6 +49,9 @@ class Capture:
     frame_ids: np.ndarray
     distortion: np.ndarray | None = None
     source_format: str = "unknown"
+    stream_world_from_camera: np.ndarray | None = None
+    stream_timestamps: np.ndarray | None = None
+    stream_frame_ids: np.ndarray | None = None
 
     @property
     def num_frames(self) -> int:
@@ -55,8 +67,16 @@ class Capture:
         """``(width, height)`` of the depth maps in pixels."""
         return int(self.depth.shape[2]), int(self.depth.shape[1])
 
+    def pose_track(self) -> tuple[np.ndarray, np.ndarray]:
+        """``(timestamps [S], world_from_camera [S, 4, 4])``: the densest recorded trajectory the
+        capture holds, its pose stream when it has one, else its frames' poses."""
+        if self.stream_world_from_camera is not None and self.stream_timestamps is not None:
+            return self.stream_timestamps, self.stream_world_from_camera
+        return self.timestamps, self.world_from_camera
+
     def select_frames(self, index) -> Capture:
-        """The recording restricted to the frames ``index`` (a slice or indices), in that order."""
+        """The recording restricted to the frames ``index`` (a slice or indices), in that order
+        (the pose stream is kept whole: it is the recording's, not the frames')."""
         idx = np.arange(self.num_frames)[index]
         return dataclasses.replace(
             self, rgb=self.rgb[idx], depth=self.depth[idx],

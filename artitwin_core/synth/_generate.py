@@ -8,6 +8,7 @@ is kept.
 
 from __future__ import annotations
 
+import copy
 from collections import OrderedDict
 from dataclasses import dataclass
 
@@ -124,7 +125,24 @@ class _Recorder:
         )
         return rgb, depth, conf, view.label, dview.depth, dview.label
 
-    def capture(self, frame_ids, rgb, depth, conf, recorded_poses) -> Capture:
+    def pose_stream(self, pose_at, frame_ids: np.ndarray, recorded: np.ndarray, drift_rng: np.random.Generator,
+                    jitter_rng: np.random.Generator) -> dict:
+        """``Capture``'s ``stream_*`` fields: the recorded pose of every frame of the 30 fps stream
+        up to the last frame kept, as a phone records one per frame whether the frame is kept or
+        not. The kept frames' poses are ``recorded``; the others are read off the camera path
+        the same way (``pose_at``: true pose, in the recording's world, at given times), with the
+        same drift (``drift_rng``: the generator ``recorded`` was drawn from, as it was before)
+        and their own jitter (``jitter_rng``)."""
+        ids = np.arange(int(frame_ids[-1]) + 1)
+        t = ids / FPS
+        no_jitter = {k: v for k, v in self.effects.items() if k != "pose_jitter"}
+        stream = drift_and_jitter(pose_at(self.recorded_pose_times(t)), t, no_jitter, drift_rng)
+        if "pose_jitter" in self.effects:
+            stream = drift_and_jitter(stream, t, {"pose_jitter": self.effects["pose_jitter"]}, jitter_rng)
+        stream[frame_ids] = recorded
+        return {"stream_world_from_camera": stream, "stream_timestamps": t, "stream_frame_ids": ids.astype(np.int64)}
+
+    def capture(self, frame_ids, rgb, depth, conf, recorded_poses, stream: dict | None = None) -> Capture:
         n = len(frame_ids)
         lens = self.effects.get("lens_distortion")
         honest = lens is not None and bool(lens["record"])
@@ -139,6 +157,7 @@ class _Recorder:
             frame_ids=np.asarray(frame_ids, dtype=np.int64),
             distortion=self.distortion.copy() if honest else None,
             source_format="synthetic",
+            **(stream or {}),
         )
 
 
@@ -162,9 +181,11 @@ def generate_scene(spec: SceneSpec) -> SyntheticScene:
     rec = _Recorder(spec, "static")
     frames = [rec.frame(lambda _t: closed, path_s.world_from_camera, t) for t in t_s]
     true_s = path_s.world_from_camera(t_s)
-    recorded_s = drift_and_jitter(path_s.world_from_camera(rec.recorded_pose_times(t_s)), t_s, rec.effects,
-                                  sub_rng(spec.seed, "pose_s"))
-    static = rec.capture(ids_s, *zip(*[f[:3] for f in frames], strict=True), recorded_s)
+    pose_rng = sub_rng(spec.seed, "pose_s")
+    drift_rng = copy.deepcopy(pose_rng)
+    recorded_s = drift_and_jitter(path_s.world_from_camera(rec.recorded_pose_times(t_s)), t_s, rec.effects, pose_rng)
+    stream_s = rec.pose_stream(path_s.world_from_camera, ids_s, recorded_s, drift_rng, sub_rng(spec.seed, "stream_s"))
+    static = rec.capture(ids_s, *zip(*[f[:3] for f in frames], strict=True), recorded_s, stream_s)
     static_seen = (np.stack([f[4] for f in frames]), path_s.world_from_camera(t_s + rec.dt), rec.k_depth)
 
     # Dynamic: a short sweep while the hand opens each part in turn.
@@ -181,9 +202,16 @@ def generate_scene(spec: SceneSpec) -> SyntheticScene:
     frames = [rec.frame(state_at, path_d.world_from_camera, t) for t in t_d]
     true_d = path_d.world_from_camera(t_d)
     canonical_from_session = session_transform(spec.seed, spec.session_offset_m)
-    in_session = invert_se3(canonical_from_session) @ path_d.world_from_camera(rec.recorded_pose_times(t_d))
-    recorded_d = drift_and_jitter(in_session, t_d, rec.effects, sub_rng(spec.seed, "pose_d"))
-    dynamic = rec.capture(ids_d, *zip(*[f[:3] for f in frames], strict=True), recorded_d)
+    session_from_canonical = invert_se3(canonical_from_session)
+
+    def in_session(times: np.ndarray) -> np.ndarray:
+        return session_from_canonical @ path_d.world_from_camera(times)
+
+    pose_rng = sub_rng(spec.seed, "pose_d")
+    drift_rng = copy.deepcopy(pose_rng)
+    recorded_d = drift_and_jitter(in_session(rec.recorded_pose_times(t_d)), t_d, rec.effects, pose_rng)
+    stream_d = rec.pose_stream(in_session, ids_d, recorded_d, drift_rng, sub_rng(spec.seed, "stream_d"))
+    dynamic = rec.capture(ids_d, *zip(*[f[:3] for f in frames], strict=True), recorded_d, stream_d)
 
     labels = np.stack([f[3] for f in frames])
     closed_from_world = np.stack([

@@ -43,7 +43,10 @@ def test_a_significant_lag_is_stored_and_applied(captures):
     assert lag.z_score > 10 and lag.agreement_z > 2 and lag.residual_lag_m < lag.residual_zero_m
     assert "late" in lag.note and "corrected" in lag.note
     fixed = correct_pose_lag(late, lag, PoseLagStageConfig())
-    np.testing.assert_array_equal(fixed.world_from_camera, shift_poses(late.world_from_camera, late.timestamps, lag.lag_s))
+    track = (late.stream_timestamps, late.stream_world_from_camera)  # the 30 fps poses between the frames
+    np.testing.assert_array_equal(fixed.world_from_camera,
+                                  shift_poses(late.world_from_camera, late.timestamps, lag.lag_s, track))
+    np.testing.assert_array_equal(fixed.stream_world_from_camera, shift_poses(track[1], track[0], lag.lag_s))
     assert np.array_equal(fixed.depth, late.depth, equal_nan=True) and np.array_equal(fixed.rgb, late.rgb)
     assert np.abs(fixed.world_from_camera - late.world_from_camera).max() > 0.01
 
