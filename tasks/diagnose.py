@@ -145,7 +145,7 @@ def predict_views(
 
 # 4: the dynamic recording's camera, when stage IV modelled it, is applied.
 # 5: the prediction says which vignetting it applied.
-@stage(name="predict_dynamic", version=5, config=PredictViewsConfig, output=ViewPrediction)
+@stage(name="predict_dynamic", version=6, config=PredictViewsConfig, output=ViewPrediction)
 def predict_dynamic(
     twin: GaussianCheckpoint,
     dynamic: CaptureArtifact,
@@ -184,7 +184,7 @@ def predict_dynamic(
     rgb_poses, js_depth = poses, js
     lag = joints.rgb_time_offset_s
     if lag != 0.0 and joints.timestamps is not None:
-        rgb_poses = poses_on_rgb_clock(poses, joints.timestamps, lag)
+        rgb_poses = poses_on_rgb_clock(poses, joints.timestamps, lag, to_core(Capture, dynamic).stream_track())
         js_depth = [to_rgb_clock(j, joints.timestamps, -lag) for j in js]
     frames = prediction_frames(t_frames, config)
     cap = _predicted_grid(to_core(Capture, dynamic), frames, config)
@@ -275,7 +275,7 @@ def _sensor_data(capture: CaptureArtifact, prediction: ViewPrediction, config: D
         depth_confidence=capture.confidence, timestamps=capture.timestamps,
         depth_intrinsics=capture.depth_intrinsics,
         world_from_camera=capture.world_from_camera if prediction.world_from_camera is None else prediction.world_from_camera,
-        **core_kwargs(make_residual_data, config),
+        pose_track=capture.stream_track(), **core_kwargs(make_residual_data, config),
     )
 
 
@@ -492,7 +492,7 @@ def _with_findings(report: DiagnosisReport, scope: str, findings: list[EffectFin
 # 11: the recording's own vignetting test; joint effects wait for a depth error to be modelled;
 # the self-consistency test leaves out the frames a lag correction could not reach.
 # 12: after a lag correction between frames far apart, the depth error is reported, not enabled.
-@stage(name="diagnose", version=13, config=DiagnoseConfig, output=DiagnosisReport)
+@stage(name="diagnose", version=14, config=DiagnoseConfig, output=DiagnosisReport)
 def diagnose_twin(
     capture: CaptureArtifact,
     prediction: ViewPrediction,
@@ -523,7 +523,7 @@ def diagnose_twin(
 # 4: the self-consistency metrics, as diagnose.
 # 5: the recording's own vignetting test, as diagnose.
 # 6: as diagnose 12.
-@stage(name="diagnose_static", version=6, config=DiagnoseConfig, output=DiagnosisReport)
+@stage(name="diagnose_static", version=7, config=DiagnoseConfig, output=DiagnosisReport)
 def diagnose_static(
     capture: CaptureArtifact, prediction: ViewPrediction, config: DiagnoseConfig, pose_lag: PoseLagResult | None = None
 ) -> DiagnosisReport:
@@ -537,7 +537,7 @@ def diagnose_static(
 
 
 # 5: the recording's own vignetting test.
-@stage(name="diagnose_dynamic", version=5, config=DiagnoseConfig, output=DiagnosisReport)
+@stage(name="diagnose_dynamic", version=6, config=DiagnoseConfig, output=DiagnosisReport)
 def diagnose_dynamic(
     dynamic: CaptureArtifact, prediction: ViewPrediction, config: DiagnoseConfig, pose_lag: PoseLagResult | None = None
 ) -> DiagnosisReport:

@@ -70,9 +70,14 @@ class Capture:
     def pose_track(self) -> tuple[np.ndarray, np.ndarray]:
         """``(timestamps [S], world_from_camera [S, 4, 4])``: the densest recorded trajectory the
         capture holds, its pose stream when it has one, else its frames' poses."""
-        if self.stream_world_from_camera is not None and self.stream_timestamps is not None:
-            return self.stream_timestamps, self.stream_world_from_camera
-        return self.timestamps, self.world_from_camera
+        return self.stream_track() or (self.timestamps, self.world_from_camera)
+
+    def stream_track(self) -> tuple[np.ndarray, np.ndarray] | None:
+        """``(stream_timestamps [S], stream_world_from_camera [S, 4, 4])``, or ``None`` when the
+        capture holds no poses beyond its frames'."""
+        if self.stream_world_from_camera is None or self.stream_timestamps is None:
+            return None
+        return self.stream_timestamps, self.stream_world_from_camera
 
     def select_frames(self, index) -> Capture:
         """The recording restricted to the frames ``index`` (a slice or indices), in that order

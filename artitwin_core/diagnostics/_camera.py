@@ -34,7 +34,7 @@ from scipy.ndimage import gaussian_filter
 from artitwin_core.diagnostics._patch import drift_columns
 from artitwin_core.diagnostics._plugin import Effect, Evidence, register_effect
 from artitwin_core.diagnostics._residuals import NOT_READ_BY_IMAGE_EFFECTS, ResidualData
-from artitwin_core.geometry import axis_angle_to_matrix, backproject, pixel_grid
+from artitwin_core.geometry import axis_angle_to_matrix, backproject, pixel_grid, relative_motion
 
 
 def _binned_mean(x: np.ndarray, y: np.ndarray, n: int) -> tuple[np.ndarray, np.ndarray]:
@@ -487,32 +487,56 @@ def image_velocity(data: ResidualData) -> np.ndarray:
     """``[T, H, W, 2]`` image velocity (pixels per second) of the predicted surface at each RGB pixel.
 
     Each pixel's predicted point (predicted depth, nearest depth pixel) is projected into the
-    recorded poses of the five frames around it; the velocity is the derivative at the frame's time
-    of the polynomial through those projections (centred, one-sided at the ends).
+    camera a moment before and after the frame's time. With a pose stream
+    (``data.track_timestamps``) those cameras are the frame's pose moved by the stream's motion
+    over one stream interval either side (a central difference, one-sided at its ends). Without,
+    they are the recorded poses of the five frames around it, and the velocity is the derivative
+    at the frame's time of the polynomial through those projections (centred, one-sided at the
+    ends); frames far apart alias hand shake.
     The camera moves, the scene does not: this is the motion field of the recorded camera path.
     NaN where the prediction has no depth.
     """
+    key_arrays = (data.depth_pred, data.world_from_camera, data.rgb_intrinsics, data.track_world_from_camera)
     for key, value in _VELOCITY_CACHE:  # fits call this many times on the same recording
-        if all(a is b for a, b in zip(key, (data.depth_pred, data.world_from_camera, data.rgb_intrinsics), strict=True)):
+        if all(a is b for a, b in zip(key, key_arrays, strict=True)):
             return value
     t_count, h, w = data.rgb_valid.shape
     poses = data.world_from_camera
     world = rgb_world_points(data)
-    # The derivative at t_i of the polynomial through the projections into the frames around i
-    # (five where there are: hand shake is fast, a three-point difference underestimates it).
-    n_pts = min(VELOCITY_POINTS, t_count)
-    out = np.zeros((t_count, h, w, 2))
-    for j in range(n_pts):
-        others = np.array([min(max(i - n_pts // 2, 0), t_count - n_pts) + j for i in range(t_count)])
-        x, y, _ = _project(world, data.rgb_intrinsics[others], poses[others])
-        out += _derivative_weights(data.timestamps, n_pts)[:, j, None, None, None] * np.stack([x, y], -1)
+    if data.track_timestamps is not None and data.track_world_from_camera is not None:
+        out = _track_velocity(data, world)
+    else:
+        # The derivative at t_i of the polynomial through the projections into the frames around i
+        # (five where there are: hand shake is fast, a three-point difference underestimates it).
+        n_pts = min(VELOCITY_POINTS, t_count)
+        out = np.zeros((t_count, h, w, 2))
+        for j in range(n_pts):
+            others = np.array([min(max(i - n_pts // 2, 0), t_count - n_pts) + j for i in range(t_count)])
+            x, y, _ = _project(world, data.rgb_intrinsics[others], poses[others])
+            out += _derivative_weights(data.timestamps, n_pts)[:, j, None, None, None] * np.stack([x, y], -1)
     _remember_velocity(data, out)
     return out
 
 
+def _track_velocity(data: ResidualData, world: np.ndarray) -> np.ndarray:
+    """``[T, H, W, 2]`` the image velocity of ``world [T, H, W, 3]`` from the pose stream's motion
+    about each frame's time (see :func:`image_velocity`)."""
+    ts, track = data.track_timestamps, data.track_world_from_camera
+    dt = float(np.median(np.diff(ts)))
+    t = np.clip(data.timestamps, ts[0], ts[-1])
+    before, after = np.clip(t - dt, ts[0], ts[-1]), np.clip(t + dt, ts[0], ts[-1])
+    moved = relative_motion(track, ts, np.concatenate([t, t]), np.concatenate([before, after]))
+    t_count = t.size
+    xa, ya, _ = _project(world, data.rgb_intrinsics, data.world_from_camera @ moved[:t_count])
+    xb, yb, _ = _project(world, data.rgb_intrinsics, data.world_from_camera @ moved[t_count:])
+    span = np.maximum(after - before, 1e-9)[:, None, None, None]
+    return np.stack([xb - xa, yb - ya], -1) / span
+
+
 def _remember_velocity(data: ResidualData, velocity: np.ndarray) -> None:
     """Cache ``velocity`` for ``data`` (by the identity of its arrays); the last few are kept."""
-    _VELOCITY_CACHE.insert(0, ((data.depth_pred, data.world_from_camera, data.rgb_intrinsics), velocity))
+    _VELOCITY_CACHE.insert(0, ((data.depth_pred, data.world_from_camera, data.rgb_intrinsics,
+                                data.track_world_from_camera), velocity))
     del _VELOCITY_CACHE[3:]
 
 
@@ -546,7 +570,9 @@ class _Timing(_Displacement):
                 and data.rgb_pred.shape[0] >= 3):
             return False
         gaps = np.diff(data.timestamps)
-        return bool(np.all(gaps > 0) and np.median(gaps) <= self.max_frame_interval_s)
+        # A pose stream gives the camera's motion between frames kept far apart.
+        poses_gaps = gaps if data.track_timestamps is None else np.diff(data.track_timestamps)
+        return bool(np.all(gaps > 0) and np.median(poses_gaps) <= self.max_frame_interval_s)
 
     def seconds(self, data: ResidualData, theta: np.ndarray) -> np.ndarray:
         """``[T or 1, H or 1, W or 1]`` the time (seconds) by which each measured pixel is late."""

@@ -115,6 +115,11 @@ class ResidualData:
         rgb_pred_sampling: how the capture records a pixel from its sub-pixels: ``"box"`` (their
             mean: a sensor integrating over the pixel, or s x s anti-aliasing) or ``"point"`` (the
             centre sub-pixel, odd ``s``: a point-sampled render).
+        track_timestamps, track_world_from_camera: optional ``[S]`` seconds (the clock of
+            ``timestamps``) and ``[S, 4, 4]`` poses of the recording's pose stream, denser than the
+            frames (``Capture.pose_track``), in its own world frame: only the camera's motion
+            between times is read off it (the timing effects' image velocity), applied to
+            ``world_from_camera``. None: that motion is read off the frames' own poses.
     """
 
     rgb_pred: np.ndarray | None = None
@@ -135,6 +140,8 @@ class ResidualData:
     rgb_pred_hi: np.ndarray | None = None
     rgb_pred_scale: int = 1
     rgb_pred_sampling: str = "box"
+    track_timestamps: np.ndarray | None = None
+    track_world_from_camera: np.ndarray | None = None
 
     @property
     def has_rgb(self) -> bool:
@@ -207,6 +214,7 @@ def make_residual_data(
     world_from_camera=None,
     rgb_pred_hi=None,
     rgb_pred_sampling: str = "box",
+    pose_track=None,
 ) -> ResidualData:
     """Check shapes and build ``ResidualData`` from sRGB images and depth maps.
 
@@ -225,6 +233,8 @@ def make_residual_data(
         rgb_pred_hi: optional ``[T, sH, sW, 3]`` sRGB, the prediction rendered ``s`` times denser
             (integer ``s >= 2``; see ``ResidualData.rgb_pred_hi`` for where its samples lie).
         rgb_pred_sampling: ``"box"`` or ``"point"`` (odd ``s``), see ``ResidualData``.
+        pose_track: optional ``(timestamps [S], world_from_camera [S, 4, 4])``, the recording's
+            pose stream (``Capture.pose_track``), see ``ResidualData.track_timestamps``.
     """
     kw: dict = {"depth_sigma": (float(depth_sigma[0]), float(depth_sigma[1])), "track_noise_m": float(track_noise_m)}
     if rgb_pred is not None or rgb_meas is not None:
@@ -305,6 +315,13 @@ def make_residual_data(
         kw["world_from_camera"] = poses
     if "timestamps" in kw and n_img is not None and kw["timestamps"].shape != (n_img,):
         raise InputError(f"make_residual_data: timestamps has shape {kw['timestamps'].shape}; expected [{n_img}].")
+    if pose_track is not None:
+        ts, poses = (np.asarray(v, dtype=np.float64) for v in pose_track)
+        if (ts.ndim != 1 or ts.size < 2 or poses.shape != (ts.size, 4, 4) or np.any(np.diff(ts) <= 0)
+                or not np.all(np.isfinite(poses)) or "timestamps" not in kw):
+            raise InputError(f"make_residual_data: pose_track holds {ts.shape} times and {poses.shape} poses; give "
+                             "increasing [S] seconds and finite [S, 4, 4] poses, with the frames' timestamps.")
+        kw.update(track_timestamps=ts, track_world_from_camera=poses)
     return ResidualData(**kw)
 
 

@@ -26,7 +26,7 @@ from artitwin_core.geometry._se3 import (
     make_se3,
     transform_points,
 )
-from artitwin_core.geometry._trajectory import interpolate_poses
+from artitwin_core.geometry._trajectory import interpolate_poses, relative_motion
 from artitwin_core.geometry._voxels import unique_rows
 
 __all__ = [
@@ -37,6 +37,7 @@ __all__ = [
     "corner_radius_sq",
     "depth_normals",
     "interpolate_poses",
+    "relative_motion",
     "invert_se3",
     "make_se3",
     "matrix_to_quat_wxyz",

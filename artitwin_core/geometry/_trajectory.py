@@ -6,6 +6,8 @@ import numpy as np
 from scipy.interpolate import CubicSpline
 from scipy.spatial.transform import Rotation, RotationSpline
 
+from artitwin_core.geometry._se3 import invert_se3
+
 
 def interpolate_poses(world_from_camera: np.ndarray, timestamps: np.ndarray, at_s: np.ndarray) -> np.ndarray:
     """The poses ``[N, 4, 4]`` at times ``at_s [N]`` (seconds) of a trajectory recorded as
@@ -41,3 +43,15 @@ def interpolate_poses(world_from_camera: np.ndarray, timestamps: np.ndarray, at_
         out[:, :3, :3] = RotationSpline(ts, rotations)(inside).as_matrix()
         out[:, :3, 3] = CubicSpline(ts, poses[:, :3, 3], axis=0)(inside)
     return out
+
+
+def relative_motion(world_from_camera: np.ndarray, timestamps: np.ndarray, from_s: np.ndarray,
+                    to_s: np.ndarray) -> np.ndarray:
+    """``[N, 4, 4]`` the camera's motion from times ``from_s [N]`` to ``to_s [N]`` along the
+    trajectory ``world_from_camera [T, 4, 4]`` at ``timestamps [T]`` (:func:`interpolate_poses`),
+    as ``camera(from)_from_camera(to)``: a pose ``P`` at ``from`` moves to ``P @ motion``. Free of
+    the trajectory's world frame, so another estimate of the same camera's poses (refined,
+    registered) can be moved by it."""
+    a = interpolate_poses(world_from_camera, timestamps, from_s)
+    b = interpolate_poses(world_from_camera, timestamps, to_s)
+    return invert_se3(a) @ b

@@ -18,6 +18,7 @@ from dataclasses import replace
 import numpy as np
 
 from artitwin_core._errors import InputError
+from artitwin_core.geometry import relative_motion
 from artitwin_core.joints._types import Joint
 
 
@@ -78,10 +79,14 @@ def to_rgb_clock(joint: Joint, timestamps: np.ndarray, depth_late_s: float) -> J
     )  # fmt: skip
 
 
-def poses_on_rgb_clock(world_from_camera: np.ndarray, timestamps: np.ndarray, depth_late_s: float) -> np.ndarray:
+def poses_on_rgb_clock(world_from_camera: np.ndarray, timestamps: np.ndarray, depth_late_s: float,
+                       track: tuple[np.ndarray, np.ndarray] | None = None) -> np.ndarray:
     """``[T, 4, 4]`` camera poses at the frames' RGB exposures, from poses recorded
-    ``depth_late_s`` later (with the depth maps): rotations by spherical interpolation, centres
-    linearly, between the recorded poses; frames outside their span hold the nearest one.
+    ``depth_late_s`` later (with the depth maps). With ``track`` (``(timestamps [S],
+    world_from_camera [S, 4, 4])``, the recording's pose stream on the frames' clock, in any world
+    frame) each pose is moved by the stream's motion over ``-depth_late_s``
+    (``geometry.relative_motion``); without, rotations by spherical interpolation, centres
+    linearly, between the recorded poses. Frames outside their span hold the nearest one.
 
     Raises:
         InputError: ``world_from_camera`` not ``[T, 4, 4]`` for the ``[T]`` timestamps, or a
@@ -96,6 +101,9 @@ def poses_on_rgb_clock(world_from_camera: np.ndarray, timestamps: np.ndarray, de
     _check_clock(ts, depth_late_s)
     if depth_late_s == 0.0 or ts.size < 2:
         return poses.copy()
+    if track is not None:
+        track_ts, track_poses = (np.asarray(v, dtype=np.float64) for v in track)
+        return poses @ relative_motion(track_poses, track_ts, ts, ts - depth_late_s)
     recorded_at = ts + depth_late_s
     at = np.clip(ts, recorded_at[0], recorded_at[-1])
     out = poses.copy()
