@@ -87,3 +87,7 @@ def test_ingest_keeps_keyframes_at_the_working_resolution(tmp_path):
     keep = np.searchsorted(whole.frame_ids, art.frame_ids)
     np.testing.assert_array_equal(whole.rgb[keep], art.rgb)
     np.testing.assert_allclose(whole.rgb_intrinsics[keep], art.rgb_intrinsics)
+    # the frames left out keep their poses in the pose stream (the lag correction reads them)
+    assert whole.stream_world_from_camera is None
+    np.testing.assert_array_equal(art.stream_frame_ids, whole.frame_ids)
+    np.testing.assert_allclose(art.stream_world_from_camera, whole.world_from_camera)
