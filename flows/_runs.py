@@ -75,7 +75,10 @@ def rerun_effects(report: DiagnosisReport, modelled: list[str]) -> tuple[list[st
             continue
         param = MODELLED[name].param
         if param:
-            fitted = [f.params[param] for f in report.findings if f.name == name and param in f.params]
+            # the value fitted where it was enabled: the same effect fitted in another scope (a
+            # time offset of the static recording, ~0) is not the one to model here
+            fitted = [f.params[param] for f in report.findings
+                      if f.name == name and param in f.params and (not scope or f.scope == scope)]
             if not fitted:
                 continue
             flag = f"{flag}={float(fitted[0]):.4g}"

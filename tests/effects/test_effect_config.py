@@ -74,7 +74,10 @@ def test_the_rerun_command_carries_the_fitted_time_offset():
     lag = EffectFinding(name="time_offset", scope="dynamic recording", target="photometric", explained_frac=0.4,
                         energy_before=1.0, energy_after=0.6, significant=True, enabled=True,
                         params={"seconds": 0.0331, "median_speed_px_per_s": 40.0})
-    report = DiagnosisReport(findings=[lag], enabled=["dynamic recording/time_offset"], conclusion=[])
+    # the static recording's own fit (not significant) comes first in the report: not the one to model
+    static = lag.model_copy(update={"scope": "static recording", "significant": False, "enabled": False,
+                                    "params": {"seconds": 0.0006, "median_speed_px_per_s": 30.0}})
+    report = DiagnosisReport(findings=[static, lag], enabled=["dynamic recording/time_offset"], conclusion=[])
     assert rerun_effects(report, []) == (["dynamic:time_offset=0.0331"], [])
     assert rerun_effects(report, ["time_offset=0.0331"]) == ([], [])  # already modelled
     assert "--effect dynamic:time_offset=0.0331" in "\n".join(diagnosis_markdown(report))
