@@ -392,7 +392,7 @@ class JointSet(Artifact):
     k moves final mask label k + 1; ``label_map`` maps the candidate labels onto those)."""
 
     kind = "joint_set"
-    schema_version = 3
+    schema_version = 4
 
     joints: list[JointParams] = Field(description="One joint per moving part, in the canonical frame.")
     selection: dict[str, dict[str, float]] = Field(
@@ -407,6 +407,11 @@ class JointSet(Artifact):
     )
     timestamps: Array("float64", "T") | None = Field(
         default=None, description="The frames' RGB times (seconds) when rgb_time_offset_s is not 0, [T]; else None."
+    )
+    depth_clock_q: Array("float64", "J T") | None = Field(
+        default=None,
+        description="When rgb_time_offset_s is not 0: each joint's states as measured, on its frames' depth-map clock "
+        "(joints order), [J, T], for comparisons with the depth and the tracks lifted from it; else None.",
     )
     mask_labels: list[int] | None = Field(
         default=None,

@@ -16,6 +16,7 @@ from __future__ import annotations
 
 import io
 import math
+from dataclasses import replace
 
 import numpy as np
 from PIL import Image
@@ -145,7 +146,7 @@ def predict_views(
 
 # 4: the dynamic recording's camera, when stage IV modelled it, is applied.
 # 5: the prediction says which vignetting it applied.
-@stage(name="predict_dynamic", version=6, config=PredictViewsConfig, output=ViewPrediction)
+@stage(name="predict_dynamic", version=7, config=PredictViewsConfig, output=ViewPrediction)
 def predict_dynamic(
     twin: GaussianCheckpoint,
     dynamic: CaptureArtifact,
@@ -185,7 +186,7 @@ def predict_dynamic(
     lag = joints.rgb_time_offset_s
     if lag != 0.0 and joints.timestamps is not None:
         rgb_poses = poses_on_rgb_clock(poses, joints.timestamps, lag, to_core(Capture, dynamic).stream_track())
-        js_depth = [to_rgb_clock(j, joints.timestamps, -lag) for j in js]
+        js_depth = [_on_depth_clock(joints, k, j) for k, j in enumerate(js)]
     frames = prediction_frames(t_frames, config)
     cap = _predicted_grid(to_core(Capture, dynamic), frames, config)
     _, hr, wr, _ = dynamic.rgb.shape
@@ -245,6 +246,16 @@ def prediction_frames(n: int, config: PredictViewsConfig) -> list[int]:
 def _predicted_grid(capture: Capture, frames: list[int], config: PredictViewsConfig) -> Capture:
     """The capture's ``frames`` at the RGB size the prediction is rendered at (``config.max_side``)."""
     return downscale_rgb(capture.select_frames(frames), config.max_side)
+
+
+def _on_depth_clock(joints: JointSet, k: int, joint: Joint) -> Joint:
+    """Joint ``k`` of ``joints`` (states on the RGB clock, ``rgb_time_offset_s`` not 0) with its
+    states on the depth maps' clock: as ``joint_states`` measured them when the set keeps them
+    (``depth_clock_q``), else moved back (``to_rgb_clock`` with the opposite lag)."""
+    if joints.depth_clock_q is not None and k < joints.depth_clock_q.shape[0]:
+        q = np.asarray(joints.depth_clock_q[k], np.float64)
+        return replace(joint, q=q, q_range=np.array([float(np.nanmin(q)), float(np.nanmax(q))]))
+    return to_rgb_clock(joint, joints.timestamps, -joints.rgb_time_offset_s)
 
 
 def _counted(name: str, n: int):
@@ -338,7 +349,7 @@ def _track_data(joints: JointSet, trajectories: TrajectoriesArtifact, config: Di
         if joints.rgb_time_offset_s != 0.0 and joints.timestamps is not None:
             # The tracks were lifted with the depth maps and poses, recorded rgb_time_offset_s
             # after the RGB whose clock the states are on: compare on the tracks' clock.
-            joint = to_rgb_clock(joint, joints.timestamps, -joints.rgb_time_offset_s)
+            joint = _on_depth_clock(joints, k, joint)
         obs, valid = trajectories.points_in_world[:, keep], trajectories.valid[:, keep]
         model = track_model_from_joint(joint, obs, valid)
         out.append((jp.name, make_residual_data(tracks=model, tracks_obs=obs, tracks_valid=valid,
@@ -492,7 +503,7 @@ def _with_findings(report: DiagnosisReport, scope: str, findings: list[EffectFin
 # 11: the recording's own vignetting test; joint effects wait for a depth error to be modelled;
 # the self-consistency test leaves out the frames a lag correction could not reach.
 # 12: after a lag correction between frames far apart, the depth error is reported, not enabled.
-@stage(name="diagnose", version=14, config=DiagnoseConfig, output=DiagnosisReport)
+@stage(name="diagnose", version=15, config=DiagnoseConfig, output=DiagnosisReport)
 def diagnose_twin(
     capture: CaptureArtifact,
     prediction: ViewPrediction,
@@ -537,7 +548,7 @@ def diagnose_static(
 
 
 # 5: the recording's own vignetting test.
-@stage(name="diagnose_dynamic", version=6, config=DiagnoseConfig, output=DiagnosisReport)
+@stage(name="diagnose_dynamic", version=7, config=DiagnoseConfig, output=DiagnosisReport)
 def diagnose_dynamic(
     dynamic: CaptureArtifact, prediction: ViewPrediction, config: DiagnoseConfig, pose_lag: PoseLagResult | None = None
 ) -> DiagnosisReport:

@@ -129,7 +129,7 @@ def candidate_index(masks: MaskSequenceArtifact, label: int) -> int:
     return int(masks.candidates[label - 1]) if masks.candidates is not None else label - 1
 
 
-@stage(name="joint_states", version=13, config=JointStateConfig, output=JointSet)
+@stage(name="joint_states", version=14, config=JointStateConfig, output=JointSet)
 def refine_states(
     joints: JointSet,
     dynamic: CaptureArtifact,
@@ -151,24 +151,27 @@ def refine_states(
     (``to_rgb_clock``).
     """
     capture = to_core(Capture, dynamic)
+    depth_clock_q: list[np.ndarray] = []
 
     def finish(joint: Joint) -> Joint:
         # The registration's error is every joint's: it joins their standard errors.
         if config.rgb_time_offset_s != 0.0:
+            depth_clock_q.append(np.asarray(joint.q, np.float64).copy())
             joint = to_rgb_clock(joint, capture.timestamps, config.rgb_time_offset_s)
         return with_registration_error(joint, registration.covariance)
 
-    # Where the states were moved to the RGB clock, the set says so (consumers comparing them with
-    # depth or tracks lifted from it move them back: ``to_rgb_clock`` with the opposite lag).
-    clock = (
-        {"rgb_time_offset_s": config.rgb_time_offset_s, "timestamps": np.asarray(capture.timestamps, np.float64)}
-        if config.rgb_time_offset_s != 0.0
-        else {}
-    )
+    # Where the states were moved to the RGB clock, the set says so and keeps them as measured, on
+    # the depth maps' clock (consumers comparing them with depth or tracks lifted from it read
+    # those: moved there and back, interpolated twice between frames, they are not the same).
+    def clock() -> dict:
+        if config.rgb_time_offset_s == 0.0:
+            return {}
+        return {"rgb_time_offset_s": config.rgb_time_offset_s, "timestamps": np.asarray(capture.timestamps, np.float64),
+                "depth_clock_q": np.stack(depth_clock_q) if depth_clock_q else None}
     settled = {"mask_labels": joints.mask_labels, "label_map": joints.label_map, "fates": joints.fates}
     if not config.refine_from_depth:
         out = [to_artifact(JointParams, finish(to_core(Joint, p)), name=p.name) for p in joints.joints]
-        return JointSet(joints=out, selection=joints.selection, **settled, **clock)
+        return JointSet(joints=out, selection=joints.selection, **settled, **clock())
     seq = to_core(MaskSequence, masks)
     labels = {int(v) for v in np.unique(seq.part) if v > 0}
     out, notes = [], []
@@ -196,4 +199,4 @@ def refine_states(
                 sel["joint_from_depth"] = float(swapped or sel.get("joint_from_depth", 0.0) > 0)  # or settle_parts' stand-in
         out.append(to_artifact(JointParams, finish(joint), name=params.name))
         selection.setdefault(params.name, {})["state_frames_changed"] = float(changed)
-    return JointSet(joints=out, selection=selection, notes=notes, **settled, **clock)
+    return JointSet(joints=out, selection=selection, notes=notes, **settled, **clock())

@@ -191,6 +191,10 @@ def test_states_on_the_rgb_clock_are_compared_on_the_tracks_clock():
     # (this scene has 6 frames a second, and the states were interpolated there and back).
     assert naive > 10.0 * base, (naive, base)
     assert aware < 0.3 * naive, (aware, naive)
+    # joint_states keeps the states as measured (depth_clock_q): the residual is the tracks' own
+    kept = energy(JointSet(joints=[on_rgb], rgb_time_offset_s=lag, timestamps=ts,
+                           depth_clock_q=np.asarray(joints.joints[0].q, np.float64)[None]))
+    assert kept == pytest.approx(base, rel=0.01), (kept, base)
 
 
 def test_predict_dynamic_renders_rgb_and_depth_each_on_its_clock(monkeypatch):

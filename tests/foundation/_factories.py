@@ -8,7 +8,7 @@ import numpy as np
 
 from schemas import Artifact
 
-DIM_SIZES = {"T": 3, "H": 5, "W": 4, "h": 3, "w": 2, "N": 7, "K": 4, "V": 2, "L": 3, "S": 6}
+DIM_SIZES = {"T": 3, "H": 5, "W": 4, "h": 3, "w": 2, "N": 7, "K": 4, "V": 2, "L": 3, "S": 6, "J": 2}
 
 
 def random_array(dtype: str, dims, rng: np.random.Generator) -> np.ndarray:

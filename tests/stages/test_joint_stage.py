@@ -112,7 +112,8 @@ def test_joint_states_stage_refits_the_held_door_state():
     assert np.abs(late.q - held.q).max() > np.radians(0.5)
     # The set says which clock its states are on (the diagnosis moves them back for the tracks).
     assert late_set.rgb_time_offset_s == 0.02 and np.array_equal(late_set.timestamps, ts)
-    assert same.rgb_time_offset_s == 0.0 and same.timestamps is None
+    np.testing.assert_array_equal(late_set.depth_clock_q, np.asarray(held.q)[None])  # the states as measured
+    assert same.rgb_time_offset_s == 0.0 and same.timestamps is None and same.depth_clock_q is None
 
 
 def test_screw_joint_named_for_one_joint_models_that_joint_only():
