@@ -503,7 +503,7 @@ def _with_findings(report: DiagnosisReport, scope: str, findings: list[EffectFin
 # 11: the recording's own vignetting test; joint effects wait for a depth error to be modelled;
 # the self-consistency test leaves out the frames a lag correction could not reach.
 # 12: after a lag correction between frames far apart, the depth error is reported, not enabled.
-@stage(name="diagnose", version=15, config=DiagnoseConfig, output=DiagnosisReport)
+@stage(name="diagnose", version=16, config=DiagnoseConfig, output=DiagnosisReport)
 def diagnose_twin(
     capture: CaptureArtifact,
     prediction: ViewPrediction,
@@ -534,7 +534,7 @@ def diagnose_twin(
 # 4: the self-consistency metrics, as diagnose.
 # 5: the recording's own vignetting test, as diagnose.
 # 6: as diagnose 12.
-@stage(name="diagnose_static", version=7, config=DiagnoseConfig, output=DiagnosisReport)
+@stage(name="diagnose_static", version=8, config=DiagnoseConfig, output=DiagnosisReport)
 def diagnose_static(
     capture: CaptureArtifact, prediction: ViewPrediction, config: DiagnoseConfig, pose_lag: PoseLagResult | None = None
 ) -> DiagnosisReport:
@@ -548,7 +548,7 @@ def diagnose_static(
 
 
 # 5: the recording's own vignetting test.
-@stage(name="diagnose_dynamic", version=7, config=DiagnoseConfig, output=DiagnosisReport)
+@stage(name="diagnose_dynamic", version=8, config=DiagnoseConfig, output=DiagnosisReport)
 def diagnose_dynamic(
     dynamic: CaptureArtifact, prediction: ViewPrediction, config: DiagnoseConfig, pose_lag: PoseLagResult | None = None
 ) -> DiagnosisReport:
