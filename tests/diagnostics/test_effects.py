@@ -88,11 +88,11 @@ def _check_pose_drift(sc, params):
 
 
 def _check_time_offset(sc, params):
-    assert params["seconds"] == pytest.approx(0.05, abs=0.01)  # measured 0.0480 (0.0474 before the line search)
+    assert params["seconds"] == pytest.approx(0.05, abs=0.01)  # measured 0.0480 (0.0476 without the line search)
 
 
 def _check_rolling_shutter(sc, params):
-    assert params["readout_s"] == pytest.approx(0.05, abs=0.008)  # measured 0.0495 (0.0491 before the line search)
+    assert params["readout_s"] == pytest.approx(0.05, abs=0.008)  # measured 0.0495 (0.0491 without the line search)
 
 
 # Consecutive 30 fps frames (the timing effects need the camera's velocity through hand shake,
