@@ -181,14 +181,15 @@ def predict_dynamic(
         )
     params = to_core(GaussianParams, twin)
     js = [to_core(Joint, j) for j in joints.joints]
+    core = to_core(Capture, dynamic)
     poses = registration.canonical_from_session @ np.asarray(dynamic.world_from_camera, np.float64)
     rgb_poses, js_depth = poses, js
     lag = joints.rgb_time_offset_s
     if lag != 0.0 and joints.timestamps is not None:
-        rgb_poses = poses_on_rgb_clock(poses, joints.timestamps, lag, to_core(Capture, dynamic).stream_track())
+        rgb_poses = poses_on_rgb_clock(poses, joints.timestamps, lag, core.stream_track())
         js_depth = [_on_depth_clock(joints, k, j) for k, j in enumerate(js)]
     frames = prediction_frames(t_frames, config)
-    cap = _predicted_grid(to_core(Capture, dynamic), frames, config)
+    cap = _predicted_grid(core, frames, config)
     _, hr, wr, _ = dynamic.rgb.shape
     w, h = cap.rgb_size
     _, dh, dw = dynamic.depth.shape

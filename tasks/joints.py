@@ -151,27 +151,29 @@ def refine_states(
     (``to_rgb_clock``).
     """
     capture = to_core(Capture, dynamic)
-    depth_clock_q: list[np.ndarray] = []
 
     def finish(joint: Joint) -> Joint:
         # The registration's error is every joint's: it joins their standard errors.
-        if config.rgb_time_offset_s != 0.0:
-            depth_clock_q.append(np.asarray(joint.q, np.float64).copy())
-            joint = to_rgb_clock(joint, capture.timestamps, config.rgb_time_offset_s)
         return with_registration_error(joint, registration.covariance)
 
-    # Where the states were moved to the RGB clock, the set says so and keeps them as measured, on
-    # the depth maps' clock (consumers comparing them with depth or tracks lifted from it read
-    # those: moved there and back, interpolated twice between frames, they are not the same).
-    def clock() -> dict:
+    def clocked(states: JointSet) -> JointSet:
+        # With the effect time_offset the states move to the RGB clock; the set says so and keeps
+        # them as measured, on the depth maps' clock (consumers comparing them with depth or tracks
+        # lifted from it read those: moved there and back, interpolated twice between frames, they
+        # are not the same).
         if config.rgb_time_offset_s == 0.0:
-            return {}
-        return {"rgb_time_offset_s": config.rgb_time_offset_s, "timestamps": np.asarray(capture.timestamps, np.float64),
-                "depth_clock_q": np.stack(depth_clock_q) if depth_clock_q else None}
+            return states
+        ts = np.asarray(capture.timestamps, np.float64)
+        moved = [to_artifact(JointParams, to_rgb_clock(to_core(Joint, p), ts, config.rgb_time_offset_s), name=p.name)
+                 for p in states.joints]
+        measured = np.stack([np.asarray(p.q, np.float64) for p in states.joints]) if states.joints else None
+        return JointSet(**{**dict(states), "joints": moved, "rgb_time_offset_s": config.rgb_time_offset_s,
+                           "timestamps": ts, "depth_clock_q": measured})
+
     settled = {"mask_labels": joints.mask_labels, "label_map": joints.label_map, "fates": joints.fates}
     if not config.refine_from_depth:
         out = [to_artifact(JointParams, finish(to_core(Joint, p)), name=p.name) for p in joints.joints]
-        return JointSet(joints=out, selection=joints.selection, **settled, **clock())
+        return clocked(JointSet(joints=out, selection=joints.selection, **settled))
     seq = to_core(MaskSequence, masks)
     labels = {int(v) for v in np.unique(seq.part) if v > 0}
     out, notes = [], []
@@ -199,4 +201,4 @@ def refine_states(
                 sel["joint_from_depth"] = float(swapped or sel.get("joint_from_depth", 0.0) > 0)  # or settle_parts' stand-in
         out.append(to_artifact(JointParams, finish(joint), name=params.name))
         selection.setdefault(params.name, {})["state_frames_changed"] = float(changed)
-    return JointSet(joints=out, selection=selection, notes=notes, **settled, **clock())
+    return clocked(JointSet(joints=out, selection=selection, notes=notes, **settled))

@@ -361,17 +361,10 @@ def _stream_fields(stream: PoseStream | None, frame_ids: np.ndarray, timestamps:
                    world_from_camera: np.ndarray) -> dict:
     """``Capture``'s ``stream_*`` fields: empty unless ``stream`` adds poses to the frames' and
     agrees with them (each frame's pose and time in it)."""
-    if stream is None or stream.frame_ids.size < 2:
-        return {}
-    extra = np.setdiff1d(stream.frame_ids, frame_ids)
-    if extra.size == 0:
-        return {}
+    if (stream is None or stream.frame_ids.size < 2 or not np.isin(frame_ids, stream.frame_ids).all()
+            or np.isin(stream.frame_ids, frame_ids).all()):
+        return {}  # none, one that misses a frame read, or one that adds no pose
     at = np.searchsorted(stream.frame_ids, frame_ids)
-    inside = at < stream.frame_ids.size
-    found = np.zeros(frame_ids.size, bool)
-    found[inside] = stream.frame_ids[at[inside]] == frame_ids[inside]
-    if not found.all():
-        return {}
     same = (np.allclose(stream.timestamps[at], timestamps, atol=1e-9)
             and np.allclose(stream.world_from_camera[at], world_from_camera, atol=1e-9))
     if not same:

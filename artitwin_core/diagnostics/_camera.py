@@ -170,7 +170,10 @@ class _Displacement(Effect):
         return _take_frames(data, idx)
 
     def _solve(self, data: ResidualData) -> np.ndarray:
-        data = self._fit_view(data)
+        return self._solve_view(self._fit_view(data))
+
+    def _solve_view(self, data: ResidualData) -> np.ndarray:
+        """The linearised fit on ``data``, already cut to the fit frames (``_fit_view``)."""
         theta = np.zeros(len(self.param_names))
         steps = np.asarray(self.steps, np.float64)
         for sigma in self.blurs:
@@ -598,11 +601,10 @@ class _Timing(_Displacement):
     # three times it (one warp of the fit frames per evaluation, ~0.1 s on 8 frames of 256x192).
     line_search = (0.5, 3.0)
 
-    def _solve(self, data: ResidualData) -> np.ndarray:
-        theta = super()._solve(data)
+    def _solve_view(self, view: ResidualData) -> np.ndarray:
+        theta = super()._solve_view(view)
         if theta.size != 1 or not np.isfinite(theta[0]) or theta[0] == 0.0:
             return theta
-        view = self._fit_view(data)
 
         def energy(value: float) -> float:
             return target_energy(self.apply(view, {self.param_names[0]: value}), self.target)

@@ -98,8 +98,8 @@ def test_the_time_offset_is_found_against_a_twin_with_its_own_error():
     from artitwin_core.diagnostics._camera import _Displacement
 
     class LinearisedOnly(TimeOffset):
-        def _solve(self, data):
-            return _Displacement._solve(self, data)
+        def _solve_view(self, view):
+            return _Displacement._solve_view(self, view)
 
     data = residual_data("door", (("time_offset", {}),), **DENSE)
     noise = gaussian_filter(np.random.default_rng(0).normal(size=data.rgb_pred.shape[:3]), (0, 2.0, 2.0))
